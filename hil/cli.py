@@ -1,0 +1,63 @@
+"""The ``hil`` command line: one entry point, sub-commands registered by the modules that own them.
+
+Every sub-command module exposes ``register(subparsers)`` which adds its parsers and sets
+``func`` (``func(args) -> int`` exit code). Exit codes: 0 success, 1 the checked thing is
+false (a verdict, a failed check), 2 usage or configuration error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import traceback
+
+from hil.errors import HilError
+
+# Order is the order in `hil --help`.
+COMMAND_MODULES = (
+    "hil.config_cmd",
+    "plant.cli",
+    "bus.cli",
+    "hil.vcan",
+    "hil.uml",
+    "flight.cli",
+)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # argparse prints usage + message, exit 2
+        self.print_usage(sys.stderr)
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="hil", description="Thruster hardware-in-the-loop emulator.")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except HilError as exc:
+        if args.debug:
+            traceback.print_exc()
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
