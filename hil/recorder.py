@@ -1,0 +1,128 @@
+"""Run recording: per-tick JSON lines from each process, and the rerun recording built from them.
+
+Each process appends one JSON object per tick to its own file in the run directory
+(``plant.jsonl``: the truth; ``flight.jsonl``: the flight software's view) and flushes it at
+once, so a killed process leaves every tick up to the kill on disk. The rerun recording
+(``run.rrd``) puts both on one timeline (``tick`` sequence and ``sim_time`` duration); the
+recorder appends and flushes every tick while the run goes, and ``build_rrd`` rebuilds it from
+the JSON lines after any crash.
+
+A record is ``{"tick": n, "t_s": t, "series": {path: {label: value, ...}}, "events": [...]}``.
+Every series becomes one rerun entity holding one scalar per label (one line per label in the
+time-series view). Entity paths (documented in the README):
+
+========================================  ====================================================
+``truth/omega_deg_s``                     true rigid body rate x, y, z (plant)
+``truth/attitude_error_deg``              true attitude error about x, y, z (plant)
+``truth/thrust_n``                        actual thrust of every thruster (plant)
+``truth/on_ms``                           valve on-time applied in the tick per thruster (plant)
+``truth/flex_rate``                       flex mode coordinate rates (plant)
+``flight/omega_meas_deg_s``               gyro rate as received (flight)
+``flight/omega_est_deg_s``                observer's rigid rate estimate (flight)
+``flight/omega_pred_deg_s``               onboard model's one-tick prediction (flight)
+``flight/attitude_error_deg``             estimated attitude error (flight)
+``flight/residual_deg_s``                 residual w_obs - w_calc (flight)
+``flight/rho_on`` / ``flight/rho_off``    integral residuals per thruster (flight)
+``flight/thresholds``                     +threshold_off and -threshold_on (flight)
+``flight/on_ms``                          commanded on-time per thruster, THR_CMD (flight)
+``flight/compute_ms``                     per-stage compute time (flight)
+``events/plant``, ``events/flight``       faults, detections, safe states, overruns (text log)
+========================================  ====================================================
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any, TextIO
+
+
+class JsonlWriter:
+    """Append-only, flushed-per-record JSON lines file (one object per tick)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f: TextIO = self.path.open("a", encoding="utf-8", buffering=1)
+
+    def write(self, record: dict[str, Any]) -> None:
+        self._f.write(json.dumps(record, separators=(",", ":"), allow_nan=True) + "\n")
+        self._f.flush()
+
+    def close(self) -> None:
+        self._f.close()
+
+
+def read_jsonl(path: Path) -> Iterator[dict[str, Any]]:
+    """Read a JSON lines file; a torn last line (process killed mid-write) is ignored."""
+    path = Path(path)
+    if not path.exists():
+        return
+    with path.open(encoding="utf-8") as f:
+        for line in f:
+            try:
+                yield json.loads(line)
+            except json.JSONDecodeError:
+                return
+
+
+class RrdRecorder:
+    """Log records to a rerun ``.rrd`` file, flushing after every tick."""
+
+    def __init__(self, path: Path, recording_id: str, application_id: str = "thruster_hil") -> None:
+        import rerun as rr  # imported here: only the recorder needs the viewer SDK
+
+        self._rr = rr
+        self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        self.rec.save(str(path))
+        self._declared: set[str] = set()
+
+    def spawn_viewer(self) -> None:
+        self.rec.spawn(connect=True)
+
+    def log(self, source: str, record: dict[str, Any]) -> None:
+        rr, rec = self._rr, self.rec
+        rec.set_time("tick", sequence=int(record["tick"]))
+        rec.set_time("sim_time", duration=float(record["t_s"]))
+        for path, values in record.get("series", {}).items():
+            labels = list(values)
+            if path not in self._declared:
+                rec.log(path, rr.SeriesLines(names=labels), static=True)
+                self._declared.add(path)
+            rec.log(path, rr.Scalars([float(values[k]) for k in labels]))
+        for text in record.get("events", []):
+            warn = any(w in text for w in ("fault", "overrun", "safe", "lost"))
+            level = "WARN" if warn else "INFO"
+            rec.log(f"events/{source}", rr.TextLog(text, level=level))
+
+    def flush(self) -> None:
+        self.rec.flush(timeout_sec=5.0)
+
+
+def build_rrd(run_dir: Path, out: Path | None = None, recording_id: str | None = None) -> Path:
+    """Rebuild ``run.rrd`` from the run's JSON lines (plant and flight merged by tick)."""
+    run_dir = Path(run_dir)
+    out = out or run_dir / "run.rrd"
+    if out.exists():
+        out.unlink()
+    rec = RrdRecorder(out, recording_id or run_dir.name)
+    for source, record in merge_by_tick(
+        ("plant", read_jsonl(run_dir / "plant.jsonl")),
+        ("flight", read_jsonl(run_dir / "flight.jsonl")),
+    ):
+        rec.log(source, record)
+    rec.flush()
+    return out
+
+
+def merge_by_tick(*streams: tuple[str, Iterable[dict[str, Any]]]) -> Iterator[tuple[str, dict]]:
+    """Interleave (source, records) streams by tick; within a tick, the given source order."""
+    items = []
+    for order, (source, records) in enumerate(streams):
+        for r in records:
+            items.append((int(r["tick"]), order, source, r))
+    items.sort(key=lambda x: (x[0], x[1]))
+    for _, _, source, r in items:
+        yield source, r
