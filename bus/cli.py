@@ -1,5 +1,84 @@
-"""Sub-commands of `hil` owned by this module (placeholder until built)."""
+"""``hil dbc``: write, check and size the DBC generated from the catalog (DESIGN.md section 4)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bus.catalog import BITRATE_BPS, CATALOG, FRAME_BYTES, bus_load, classic_frame_bits
+from bus.dbc import DBC_PATH, dbc_text
+from hil.errors import UsageError
 
 
-def register(sub) -> None:  # noqa: ARG001
-    """Add this module's sub-parsers to ``sub``."""
+def register(sub) -> None:
+    """Add ``dbc`` to ``sub``."""
+    p = sub.add_parser(
+        "dbc",
+        help="write, check or size the CAN database (bus/hil.dbc)",
+        description="Generate the DBC from the message catalog.",
+    )
+    p.add_argument("--out", metavar="FILE", help="write the DBC here (default: stdout)")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="exit 1 if the committed bus/hil.dbc differs from the catalog",
+    )
+    p.add_argument(
+        "--load",
+        action="store_true",
+        help="print the bus load per frame and in total at the nominal cycle times",
+    )
+    p.add_argument(
+        "--bitrate",
+        type=int,
+        default=BITRATE_BPS,
+        metavar="BPS",
+        help=f"bit rate for --load (default {BITRATE_BPS})",
+    )
+    p.set_defaults(func=run)
+
+
+def load_table(bitrate_bps: int) -> str:
+    bits = classic_frame_bits(FRAME_BYTES)
+    lines = [
+        f"bus load at {bitrate_bps} bit/s, classic CAN, {bits} bits per 8-byte frame "
+        "(worst-case stuffing)",
+        f"{'frame':<18}{'id':>7}{'cycle ms':>10}{'bit/s':>10}{'load %':>9}",
+    ]
+    total = 0.0
+    for name, bps, frac in bus_load(bitrate_bps):
+        f = CATALOG.frame(name)
+        total += bps
+        lines.append(
+            f"{name:<18}{f'0x{f.frame_id:03X}':>7}{f.cycle_s * 1000:>10.0f}"
+            f"{bps:>10.0f}{100 * frac:>9.3f}"
+        )
+    on_demand = [f.name for f in CATALOG.frames if f.cycle_s is None]
+    lines.append(f"{'total':<18}{'':>7}{'':>10}{total:>10.0f}{100 * total / bitrate_bps:>9.3f}")
+    lines.append(f"on demand, not counted: {', '.join(on_demand)}")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.bitrate <= 0:
+        raise UsageError(f"hil dbc: --bitrate: expected > 0, got {args.bitrate}")
+    text = dbc_text()
+    if args.check:
+        committed = DBC_PATH.read_bytes() if DBC_PATH.exists() else b""
+        if committed != text.encode():
+            print(
+                f"{DBC_PATH.name}: differs from the catalog; run `hil dbc --out bus/hil.dbc`",
+                file=sys.stderr,
+            )
+            return 1
+        print(f"{DBC_PATH.name}: matches the catalog")
+        return 0
+    if args.load:
+        print(load_table(args.bitrate))
+        return 0
+    if args.out:
+        Path(args.out).write_bytes(text.encode())
+    else:
+        sys.stdout.write(text)
+    return 0
