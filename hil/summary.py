@@ -1,0 +1,166 @@
+"""Verdict of a run: detections matched to injected faults, false alarms, misses, maxima, timing.
+
+Pure: works on the per-tick records the plant and flight processes write (``plant.jsonl``,
+``flight.jsonl``, see ``hil.recorder``) and on the scenario. The fields of ``summary.json``:
+
+``scenario, vehicle, mode, faults[{t_s, thruster, type, fraction}], detections[{t_s, thruster,
+type, latency_s, correct}], false_alarms, missed_faults, max_attitude_error_deg,
+max_rate_error_deg_s, fuel_kg, ticks, overruns, compute_ms{p50, p99, max}, bus{...},
+expectations_met, expectation_failures``.
+
+A detection is *correct* when a thruster fault active at the detection time (injected before
+it) names the detected thruster (or is in the detected group) with a compatible type: a
+``degraded`` thruster reported as ``fail_to_fire`` counts (the detector sees too little thrust
+in both cases). Latency is detection time minus the fault's injection time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from hil.config import ExpectationsCfg
+
+COMPATIBLE = {
+    "stuck_on": {"stuck_on"},
+    "fail_to_fire": {"fail_to_fire"},
+    "degraded": {"degraded", "fail_to_fire"},
+}
+
+
+def _names(thruster: str | list[str]) -> list[str]:
+    return [thruster] if isinstance(thruster, str) else list(thruster)
+
+
+def match_detections(
+    faults: list[dict[str, Any]], detections: list[dict[str, Any]]
+) -> tuple[list[dict], list[dict], list[dict]]:
+    """Return (detections with ``latency_s``/``correct``, false alarms, missed faults)."""
+    out, false_alarms = [], []
+    detected_faults: set[int] = set()
+    for d in detections:
+        best = None
+        for k, f in enumerate(faults):
+            if f.get("thruster") is None or f["t_s"] > d["t_s"] + 1e-9:
+                continue
+            if f.get("clear_t_s") is not None and f["clear_t_s"] < f["t_s"]:
+                continue
+            if f["thruster"] in _names(d["thruster"]) and d["type"] in COMPATIBLE.get(
+                f["type"], {f["type"]}
+            ):
+                best = k
+                break
+        row = dict(d)
+        if best is None:
+            row.update(latency_s=None, correct=False)
+            false_alarms.append(row)
+        else:
+            row.update(latency_s=round(d["t_s"] - faults[best]["t_s"], 6), correct=True)
+            detected_faults.add(best)
+        out.append(row)
+    missed = [
+        f for k, f in enumerate(faults)
+        if f.get("thruster") is not None and k not in detected_faults
+    ]
+    return out, false_alarms, missed
+
+
+def percentiles_ms(values_s: Iterable[float]) -> dict[str, float | None]:
+    v = np.asarray(list(values_s), dtype=float)
+    if v.size == 0:
+        return {"p50": None, "p99": None, "max": None}
+    return {
+        "p50": round(float(np.percentile(v, 50)) * 1e3, 4),
+        "p99": round(float(np.percentile(v, 99)) * 1e3, 4),
+        "max": round(float(v.max()) * 1e3, 4),
+    }
+
+
+def check_expectations(summary: dict[str, Any], expect: ExpectationsCfg | None) -> list[str]:
+    """Every unmet expectation as one line; empty when all hold."""
+    if expect is None:
+        return []
+    fails = []
+    for e in expect.detections:
+        want = set(_names(e.thruster))
+        ok = [
+            d for d in summary["detections"]
+            if d["correct"] and want & set(_names(d["thruster"])) and d["type"] == e.type
+            and d["latency_s"] is not None and d["latency_s"] <= e.within_s + 1e-9
+        ]
+        if not ok:
+            got = [(d["thruster"], d["type"], d["latency_s"]) for d in summary["detections"]]
+            fails.append(
+                f"detection of {e.thruster} {e.type} within {e.within_s} s: "
+                f"expected, got {got or 'no detection'}"
+            )
+    if expect.no_false_alarm and summary["false_alarms"]:
+        fa = [(d["thruster"], d["type"], d["t_s"]) for d in summary["false_alarms"]]
+        fails.append(f"no false alarm: expected none, got {fa}")
+    for key, limit in (
+        ("max_attitude_error_deg", expect.max_attitude_error_deg),
+        ("max_rate_error_deg_s", expect.max_rate_error_deg_s),
+    ):
+        if limit is not None and (summary[key] is None or summary[key] > limit):
+            fails.append(f"{key}: expected <= {limit}, got {summary[key]}")
+    return fails
+
+
+def summarise(
+    *,
+    scenario: str,
+    vehicle: str,
+    mode: str,
+    plant_records: list[dict[str, Any]],
+    flight_records: list[dict[str, Any]],
+    expect: ExpectationsCfg | None,
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Build ``summary.json`` from the per-tick records of both processes."""
+    faults: list[dict[str, Any]] = []
+    for r in plant_records:
+        faults.extend(r.get("faults_injected", []))
+    detections: list[dict[str, Any]] = []
+    for r in flight_records:
+        if r.get("detection"):
+            detections.append(r["detection"])
+    matched, false_alarms, missed = match_detections(faults, detections)
+
+    settle = expect.settle_after_s if expect else 0.0
+    att = [r["att_err_deg"] for r in plant_records if "att_err_deg" in r and r["t_s"] >= settle]
+    rate = [r["rate_err_deg_s"] for r in plant_records
+            if "rate_err_deg_s" in r and r["t_s"] >= settle]
+    compute = [r["compute_s"] for r in flight_records if "compute_s" in r]
+    jitter = [r["jitter_s"] for r in flight_records if r.get("jitter_s") is not None]
+    last_plant = plant_records[-1] if plant_records else {}
+    last_flight = flight_records[-1] if flight_records else {}
+    summary: dict[str, Any] = {
+        "scenario": scenario,
+        "vehicle": vehicle,
+        "mode": mode,
+        "faults": [
+            {k: f.get(k) for k in ("t_s", "thruster", "type", "fraction")} for f in faults
+        ],
+        "detections": matched,
+        "false_alarms": false_alarms,
+        "missed_faults": missed,
+        "max_attitude_error_deg": round(max(att), 6) if att else None,
+        "max_rate_error_deg_s": round(max(rate), 6) if rate else None,
+        "fuel_kg": last_plant.get("fuel_kg"),
+        "ticks": len(plant_records),
+        "flight_ticks": len(flight_records),
+        "overruns": int(last_flight.get("overruns", 0)),
+        "compute_ms": percentiles_ms(compute),
+        "release_jitter_ms": percentiles_ms(jitter) if jitter else None,
+        "bus": {"plant": last_plant.get("bus", {}), "flight": last_flight.get("bus", {})},
+        "safe_events": [e for r in plant_records + flight_records for e in r.get("events", [])
+                        if "safe" in e or "lost" in e],
+    }
+    if extra:
+        summary.update(extra)
+    fails = check_expectations(summary, expect)
+    summary["expectations_met"] = not fails
+    summary["expectation_failures"] = fails
+    return summary
