@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "hil.vcan",
     "hil.uml",
     "flight.cli",
+    "hil.run",
 )
 
 

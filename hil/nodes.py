@@ -1,0 +1,605 @@
+"""The plant and flight processes: thin shells around the pure cores, talking only over CAN.
+
+``python -m hil.nodes plant --scenario S.yaml --out DIR [--mode lockstep|realtime] ...``
+``python -m hil.nodes flight --scenario S.yaml --out DIR [--mode lockstep|realtime] ...``
+
+Each shell owns a clock, a ``bus.transport.Port`` and a per-tick JSON lines file in ``DIR``
+(``plant.jsonl`` / ``flight.jsonl``, flushed every tick, see ``hil.recorder``). ``hil run`` and
+``hil up`` start them; they can also be started by hand on two machines sharing a CAN bus.
+
+Lockstep (DESIGN.md section 3): the plant is the time master: GYRO + SYNC(n), wait for
+THR_CMD(n) (deadline ``--reply-timeout``; a miss applies the safe action), apply it at
+``t_n`` + command latency, integrate to ``t_n+1``. Real time: the plant integrates on
+CLOCK_MONOTONIC and publishes the gyro at its rate; the flight runs the strict tick scheduler
+(``hil.scheduler``) on the same clock, aligned to the first gyro sample it receives, and the
+plant applies each THR_CMD when it arrives.
+
+Safe states (DESIGN.md section 4): the plant closes every valve (and manifold) when THR_CMD is
+missing for ``--lost-after`` ticks or the flight heartbeat is lost; the flight enters safe mode
+(no firing) when no valid gyro sample arrived for ``--gyro-lost-after`` ticks. Both are events
+in the records and on the terminal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bus.catalog import AckReason, AckStatus, DetectedFault, FaultAction, FaultKind, NodeState
+from bus.catalog import Node as NodeId
+from bus.codec import FaultAck, FaultCmd, FdirStatus, FlightTiming, Gyro, ThrCmd
+from bus.protocol import (
+    CommandLost,
+    DeadlineMissed,
+    FlightLockstep,
+    HeartbeatMonitor,
+    HeartbeatSender,
+    PeerBack,
+    PeerLost,
+    PlantLockstep,
+    TickRequest,
+)
+from bus.transport import BusConfig, BusLogger, Port, open_bus
+from hil.config import Scenario, load_scenario
+from hil.errors import FaultCommandError, HilError
+from hil.recorder import JsonlWriter
+from hil.scheduler import RateGroup, TickRecord, TickScheduler, monotonic_sleep_until
+
+XYZ = ("x", "y", "z")
+DEG = 180.0 / math.pi
+
+
+def _xyz(v, scale: float = 1.0) -> dict[str, float]:
+    return {k: float(v[i]) * scale for i, k in enumerate(XYZ)}
+
+
+def _named(names, values) -> dict[str, float]:
+    return {n: float(x) for n, x in zip(names, values, strict=True)}
+
+
+class _Stop:
+    """SIGTERM/SIGINT set a flag; loops finish the current tick and exit cleanly."""
+
+    def __init__(self) -> None:
+        self.flag = False
+        signal.signal(signal.SIGTERM, self._set)
+        signal.signal(signal.SIGINT, self._set)
+
+    def _set(self, *_: object) -> None:
+        self.flag = True
+
+    def __call__(self) -> bool:
+        return self.flag
+
+
+def _open_port(args, out: Path, name: str) -> Port:
+    cfg = BusConfig(interface=args.interface, channel=args.channel)
+    logger = BusLogger(out / f"{name}.bus.log", channel=args.channel) if args.bus_log else None
+    return Port(open_bus(cfg), logger=logger)
+
+
+def _say(name: str, text: str) -> None:
+    print(f"[{name}] {text}", flush=True)
+
+
+# ============================================================================ plant
+
+
+_KIND_FROM_BUS = {
+    FaultKind.STUCK_ON: "stuck_on", FaultKind.FAIL_TO_FIRE: "fail_to_fire",
+    FaultKind.DEGRADED: "degraded", FaultKind.GYRO_SPIKE: "gyro_spike",
+    FaultKind.GYRO_BIAS_STEP: "gyro_bias_step", FaultKind.GYRO_FROZEN: "gyro_frozen",
+    FaultKind.GYRO_NOISE: "gyro_noise", FaultKind.BUS_DROP: "bus_drop",
+    FaultKind.BUS_DELAY: "bus_delay", FaultKind.BUS_CORRUPT: "bus_corrupt",
+    FaultKind.NODE_SILENT: "node_silent",
+}
+
+
+class PlantShell:
+    """Plant process: the ``plant.core.Plant`` behind a CAN port."""
+
+    def __init__(self, sc: Scenario, port: Port, out: Path, args) -> None:
+        from plant.core import Plant
+
+        self.sc, self.port, self.args = sc, port, args
+        self.v = sc.vehicle
+        self.h = self.v.timing.tick_s
+        self.plant = Plant(self.v, seed=sc.cfg.seed, overrides=sc.cfg.plant,
+                           initial=sc.cfg.initial)
+        self.names = self.plant.arrays.names
+        self.n_thr, self.n_man = len(self.names), len(self.plant.arrays.manifolds)
+        self.all_open = (1 << self.n_man) - 1
+        for f in sc.cfg.faults:
+            if f.kind.startswith("bus_") or f.kind == "node_silent":
+                continue  # bus faults act in the shells' send paths, not in the physics
+            self.plant.inject(f)
+        self.rec = JsonlWriter(out / "plant.jsonl")
+        self.events: list[str] = []
+        self.reported_faults: set[int] = set()
+        self.gyro_time: dict[int, float] = {}   # seq -> sample time (sim s) for latency tracing
+        self.last_gyro: Gyro | None = None
+        self.safe = False
+        self.target = sc.cfg.target.quaternion()
+        self.last_cmd_tick_s = 0.0
+
+    # -- faults from the panel ------------------------------------------------------------
+
+    def on_fault_cmd(self, m: FaultCmd) -> None:
+        from hil.config import FaultSpec
+
+        reason, status = AckReason.NONE, AckStatus.ACCEPTED
+        try:
+            if m.action == FaultAction.CLEAR:
+                thr = None if m.thruster is None else self.names[m.thruster]
+                changed = self.plant.clear_faults(thr)
+                if not changed:
+                    status, reason = AckStatus.REJECTED, AckReason.NOT_ACTIVE
+                else:
+                    self.events.append(f"fault cleared: {thr or 'all'} (request {m.request_id})")
+            else:
+                kind = _KIND_FROM_BUS.get(m.kind)
+                if kind is None:
+                    raise FaultCommandError("fault: kind: expected a known kind, got none")
+                if m.thruster is not None and m.thruster >= self.n_thr:
+                    status, reason = AckStatus.REJECTED, AckReason.BAD_THRUSTER
+                else:
+                    spec = FaultSpec(
+                        kind=kind, t_s=max(m.start_time_s, self.plant.t),
+                        clear_t_s=m.clear_time_s,
+                        thruster=None if m.thruster is None else self.names[m.thruster],
+                        fraction=m.fraction if kind in ("stuck_on", "degraded") else None,
+                        magnitude_rad_s=1e-3 if kind.startswith("gyro") and kind != "gyro_frozen"
+                        else None,
+                        node="flight" if kind.startswith("bus") or kind == "node_silent" else None,
+                    )
+                    self.plant.inject(spec)
+                    self.events.append(f"fault injected by panel: {kind} "
+                                       f"{spec.thruster or ''} at {spec.t_s:.2f} s")
+        except (FaultCommandError, ValueError) as exc:
+            status, reason = AckStatus.REJECTED, AckReason.BAD_FRACTION
+            self.events.append(f"fault command rejected: {exc}")
+        self.port.send(FaultAck(m.request_id, status, reason, m.kind))
+
+    # -- gyro and commands ------------------------------------------------------------------
+
+    def publish_gyro(self, samples) -> None:
+        for s in samples:
+            seq = s.seq & 0xFFFF
+            self.gyro_time[seq] = s.t_meas_s
+            rate = np.clip(np.asarray(s.rate_B_rad_s, dtype=float), -0.2, 0.2)
+            g = Gyro(seq, tuple(float(x) for x in rate), int(s.status) or 1)
+            self.last_gyro = g
+            self.port.send(g)
+        if len(self.gyro_time) > 4096:
+            for k in list(self.gyro_time)[:2048]:
+                del self.gyro_time[k]
+
+    def apply(self, cmd: ThrCmd, t_apply_s: float) -> None:
+        on_ms = np.asarray(cmd.on_quanta, dtype=float) * 10.0
+        if on_ms.shape[0] != self.n_thr:
+            self.events.append(f"THR_CMD rejected: {on_ms.shape[0]} thrusters, "
+                               f"expected {self.n_thr}")
+            return
+        mask = np.array([(cmd.manifold_enable >> m) & 1 for m in range(self.n_man)], dtype=bool)
+        self.plant.apply_command(cmd.tick, t_apply_s, on_ms, mask)
+        self.last_cmd_tick_s = t_apply_s
+
+    def go_safe(self, t_s: float, why: str) -> None:
+        if not self.safe:
+            self.safe = True
+            self.plant.close_all_valves(t_s, manifolds=True)
+            self.events.append(f"safe: all valves and manifolds closed at {t_s:.2f} s ({why})")
+            _say("plant", self.events[-1])
+
+    # -- recording ----------------------------------------------------------------------------
+
+    def record(self, tick: int, extra: dict | None = None) -> None:
+        from flight.attitude import error_quaternion, rotation_angle, small_angle_vector
+
+        tr = self.plant.truth
+        n_err = error_quaternion(self.target, tr.q_BO)
+        att = small_angle_vector(n_err) * DEG
+        injected = []
+        for e in self.plant.faults.entries:
+            if e.id not in self.reported_faults and e.t_on_s <= tr.t_s + 1e-9:
+                self.reported_faults.add(e.id)
+                injected.append({"t_s": round(e.t_on_s, 6), "thruster": e.spec.thruster,
+                                 "type": e.spec.kind, "fraction": e.spec.effective_fraction,
+                                 "clear_t_s": None if math.isinf(e.t_off_s) else e.t_off_s})
+                self.events.append(f"fault active: {e.spec.kind} {e.spec.thruster or ''} "
+                                   f"at {e.t_on_s:.2f} s")
+        rec = {
+            "tick": tick, "t_s": round(tr.t_s, 9),
+            "series": {
+                "truth/omega_deg_s": _xyz(tr.omega_BO_B_rad_s, DEG),
+                "truth/attitude_error_deg": _xyz(att),
+                "truth/thrust_n": _named(self.names, tr.thrust_n),
+                "truth/flex_gyro_deg_s": _xyz(tr.flex_rate_gyro_B_rad_s, DEG),
+            },
+            "events": self.events,
+            "faults_injected": injected,
+            "att_err_deg": float(rotation_angle(n_err) * DEG),
+            "rate_err_deg_s": float(np.linalg.norm(tr.omega_BO_B_rad_s) * DEG),
+            "fuel_kg": float(np.sum(tr.fuel_kg)),
+            "dv_B_m_s": [float(x) for x in tr.dv_B_m_s],
+            "safe": self.safe,
+            "bus": self.port.counts(),
+        }
+        if extra:
+            rec.update(extra)
+        self.rec.write(rec)
+        self.events = []
+
+    # -- lockstep -------------------------------------------------------------------------
+
+    def run_lockstep(self, stop: _Stop) -> int:
+        a = self.args
+        n_ticks = int(round(self.sc.cfg.duration_s / self.h))
+        lock = PlantLockstep(self.n_thr, reply_timeout_s=a.reply_timeout,
+                             lost_after_misses=a.lost_after, tick_s=self.h,
+                             manifold_enable_safe=self.all_open)
+        t_wall0 = time.monotonic()
+        pending: list = []
+        for n in range(n_ticks):
+            if stop():
+                break
+            t_n = n * self.h
+            samples = pending + self.plant.advance_to(t_n)
+            # The newest sample measured by t_n is this tick's (the tick's sensor read).
+            ready = [s for s in samples if s.t_avail_s <= t_n + 1e-9]
+            pending = [s for s in samples if s.t_avail_s > t_n + 1e-9]
+            self.publish_gyro(ready[-1:])
+            self.port.send(lock.begin_tick(n, self.port.now_s(), round(t_n * 1000)))
+            latency = None
+            while lock.result is None and not stop():
+                wait = max(0.0, min(lock.deadline_s - self.port.now_s(), 0.02))
+                for msg, rx in self.port.poll(wait):
+                    if isinstance(msg, FaultCmd):
+                        self.on_fault_cmd(msg)
+                        continue
+                    for ev in lock.on_message(msg, rx):
+                        if hasattr(ev, "latency_s"):
+                            latency = ev.latency_s
+                for ev in lock.poll(self.port.now_s()):
+                    if isinstance(ev, CommandLost):
+                        self.go_safe(t_n, f"no THR_CMD for {ev.consecutive} ticks")
+                    elif isinstance(ev, DeadlineMissed):
+                        self.events.append(f"deadline missed: tick {ev.tick} "
+                                           f"({ev.consecutive} in a row)")
+            res = lock.result
+            if res is not None and not res.safe:
+                if self.safe:
+                    self.safe = False
+                    self.events.append(f"THR_CMD back at tick {n}: leaving safe state")
+                self.apply(res.command, self.plant.apply_time(t_n))
+            elif res is not None and not self.safe:
+                self.apply(res.command, self.plant.apply_time(t_n))
+            pending += self.plant.advance_to(t_n + self.h)
+            extra = {"rt_factor": round((t_n + self.h) / max(time.monotonic() - t_wall0, 1e-9), 2),
+                     "sync_to_cmd_s": latency, "deadline_misses": lock.deadline_misses}
+            self.record(n, extra)
+        self.record_end(time.monotonic() - t_wall0, n_ticks)
+        return 0
+
+    # -- real time ------------------------------------------------------------------------
+
+    def run_realtime(self, stop: _Stop) -> int:
+        a = self.args
+        duration = self.sc.cfg.duration_s
+        t0 = time.monotonic()
+        hb = HeartbeatSender(NodeId.PLANT, 0.0)
+        mon = HeartbeatMonitor(NodeId.FLIGHT, 0.0, missed_limit=a.heartbeat_misses)
+        next_record = self.h
+        tick = 0
+        last_cmd_wall = None
+        s2a: list[float] = []
+        while not stop():
+            now = time.monotonic() - t0
+            if now >= duration:
+                break
+            samples = self.plant.advance_to(now)
+            self.publish_gyro(samples)
+            for msg, rx in self.port.poll(0.002):
+                rx_sim = self.port.to_monotonic_s(rx) - t0
+                mon.on_message(msg, rx_sim)
+                if isinstance(msg, FaultCmd):
+                    self.on_fault_cmd(msg)
+                elif isinstance(msg, ThrCmd):
+                    t_apply = max(rx_sim, self.plant.t) + self.sc.cfg.plant.command_latency_ms / 1e3
+                    if self.safe and mon.alive:
+                        self.safe = False
+                        self.events.append(f"THR_CMD back at {rx_sim:.2f} s: leaving safe state")
+                    if not self.safe:
+                        self.apply(msg, t_apply)
+                    last_cmd_wall = rx_sim
+                    t_meas = self.gyro_time.get(msg.gyro_seq)
+                    if t_meas is not None:
+                        s2a.append(t_apply - t_meas)
+            now = time.monotonic() - t0
+            for ev in mon.poll(now):
+                if isinstance(ev, PeerLost):
+                    self.go_safe(self.plant.t, "flight heartbeat lost")
+                elif isinstance(ev, PeerBack):
+                    self.events.append("flight heartbeat back")
+            if last_cmd_wall is not None and now - last_cmd_wall > a.lost_after * self.h:
+                self.go_safe(self.plant.t, f"no THR_CMD for {a.lost_after} ticks")
+            beat = hb.poll(now, NodeState.SAFE if self.safe else NodeState.RUN)
+            if beat:
+                self.port.send(beat)
+            if self.plant.t >= next_record:
+                extra = {"s2a_s": s2a}
+                s2a = []
+                self.record(tick, extra)
+                tick += 1
+                next_record += self.h
+        self.record_end(time.monotonic() - t0, tick)
+        return 0
+
+    def record_end(self, wall_s: float, ticks: int) -> None:
+        self.events.append(f"plant done: {ticks} ticks, {self.plant.t:.1f} s simulated in "
+                           f"{wall_s:.1f} s wall")
+        _say("plant", self.events[-1])
+        self.record(ticks, {"final": True})
+        self.rec.close()
+
+
+# ============================================================================ flight
+
+
+class FlightShell:
+    """Flight process: ``flight.software.FlightSoftware`` behind a CAN port."""
+
+    def __init__(self, sc: Scenario, port: Port, out: Path, args) -> None:
+        from flight.software import FlightSoftware
+
+        self.sc, self.port, self.args = sc, port, args
+        self.v = sc.vehicle
+        self.h = self.v.timing.tick_s
+        self.fs = FlightSoftware(self.v, target=sc.cfg.target,
+                                 initial_attitude=sc.cfg.initial.attitude)
+        self.names = self.fs.arrays.names
+        self.rec = JsonlWriter(out / "flight.jsonl")
+        self.events: list[str] = []
+        self.overruns = 0
+        self.detections = 0
+        self.safe = False
+        self.gyro: Gyro | None = None
+        self.gyro_fresh = False
+        self.ticks_without_gyro = 0
+        self.last_out = None
+
+    def tick(self, n: int, jitter_s: float | None = None) -> None:
+        """One flight tick: stages in order, each timed; THR_CMD, FDIR_STATUS, telemetry out."""
+        fs, clk = self.fs, time.perf_counter_ns
+        t_start = clk()
+        if self.gyro is None or not self.gyro_fresh:
+            self.ticks_without_gyro += 1
+        else:
+            self.ticks_without_gyro = 0
+        if self.ticks_without_gyro >= self.args.gyro_lost_after and not self.safe:
+            self.safe = True
+            fs.peer_lost()
+            self.events.append(f"safe mode: no valid gyro for {self.ticks_without_gyro} ticks")
+            _say("flight", self.events[-1])
+        elif self.safe and self.ticks_without_gyro == 0:
+            self.safe = False
+            fs.peer_back()
+            self.events.append("gyro back: leaving safe mode")
+        omega = np.zeros(3) if self.gyro is None else np.asarray(self.gyro.omega_B_rad_s)
+        self.gyro_fresh = False
+        stage_ns = {}
+        t0 = clk()
+        fs.begin(n, omega)
+        stage_ns["gyro_in"] = clk() - t0
+        for name in fs.STAGES:
+            t0 = clk()
+            getattr(fs, "stage_" + name)()
+            stage_ns[name] = clk() - t0
+        out = fs.finish()
+        t0 = clk()
+        quanta = tuple(int(x) // 10 for x in out.on_ms)
+        if self.safe:
+            quanta = (0,) * len(quanta)
+        mask = sum(1 << m for m, o in enumerate(out.manifold_open) if o)
+        seq = self.gyro.sample_seq if self.gyro else 0
+        cmd = self._reply(n, quanta, mask, seq)
+        if cmd is not None:
+            self.port.send(cmd)
+        det = out.detection
+        detection = None
+        if det is not None:
+            self.detections += 1
+            names = [self.names[i] for i in det.group]
+            thr = names[0] if len(names) == 1 else names
+            detection = {"t_s": round(n * self.h, 6), "tick": n, "thruster": thr,
+                         "type": det.kind, "source": det.source, "rho": float(det.rho)}
+            self.events.append(f"detection: {det.kind} of "
+                               f"{thr if isinstance(thr, str) else 'one of ' + str(thr)} "
+                               f"at {n * self.h:.1f} s ({det.source})")
+            _say("flight", self.events[-1])
+        stage_ns["thr_cmd_out"] = clk() - t0
+        t0 = clk()
+        ftype = {"stuck_on": DetectedFault.STUCK_ON, "fail_to_fire": DetectedFault.FAIL_TO_FIRE}
+        closed = sum(1 << m for m, o in enumerate(out.manifold_open) if not o)
+        if det is not None:
+            self.last_det = det
+        last = getattr(self, "last_det", None)
+        g = last.group if last else ()
+        self.port.send(FdirStatus(
+            last.tick if last else 0, ftype.get(last.kind, DetectedFault.NONE) if last else 0,
+            g[0] if g else None, g[1] if len(g) > 1 else None,
+            closed, self.safe or out.safe_mode, 0))
+        compute_s = (clk() - t_start) / 1e9
+        self.port.send(FlightTiming(n, min(compute_s, 0.065), self.overruns % 256))
+        stage_ns["fdir_tm_out"] = clk() - t0
+        self.record(n, out, detection, stage_ns, compute_s, jitter_s)
+
+    def _reply(self, n, quanta, mask, seq):
+        lock = getattr(self, "lock", None)
+        if lock is not None:
+            return lock.reply(n, quanta, mask, seq)
+        return ThrCmd(n, quanta, mask, seq)
+
+    def record(self, n, out, detection, stage_ns, compute_s, jitter_s) -> None:
+        thr_off = out.threshold_off
+        rec = {
+            "tick": n, "t_s": round(n * self.h, 6),
+            "series": {
+                "flight/omega_meas_deg_s": _xyz(out.omega_meas, DEG),
+                "flight/omega_est_deg_s": _xyz(out.omega_est, DEG),
+                "flight/omega_pred_deg_s": _xyz(out.omega_pred, DEG),
+                "flight/residual_deg_s": _xyz(out.residual, DEG),
+                "flight/attitude_error_deg": _xyz(out.att_err_rad, DEG),
+                "flight/rho_on": _named(self.names, out.rho_on),
+                "flight/rho_off": _named(self.names, out.rho_off),
+                "flight/thresholds": {"off": thr_off, "on": -out.threshold_on},
+                "flight/on_ms": _named(self.names, out.on_ms),
+                "flight/compute_ms": {k: v / 1e6 for k, v in stage_ns.items()},
+            },
+            "events": self.events,
+            "detection": detection,
+            "compute_s": compute_s,
+            "stage_s": {k: v / 1e9 for k, v in stage_ns.items()},
+            "jitter_s": jitter_s,
+            "overruns": self.overruns,
+            "safe": self.safe,
+            "bus": self.port.counts(),
+        }
+        self.rec.write(rec)
+        self.events = []
+
+    def absorb(self, msgs) -> list:
+        """Take messages from the bus; returns lockstep events (TickRequest...)."""
+        evs = []
+        for msg, rx in msgs:
+            if isinstance(msg, Gyro):
+                self.gyro, self.gyro_fresh = msg, True
+            lock = getattr(self, "lock", None)
+            if lock is not None:
+                evs.extend(lock.on_message(msg, rx))
+        return evs
+
+    def run_lockstep(self, stop: _Stop) -> int:
+        self.lock = FlightLockstep()
+        while not stop():
+            for ev in self.absorb(self.port.poll(0.05)):
+                if isinstance(ev, TickRequest):
+                    self.tick(ev.tick)
+        self.rec.close()
+        return 0
+
+    def run_realtime(self, stop: _Stop) -> int:
+        # Align the tick grid to the plant's gyro: wait for the first sample, release 1 ms after.
+        first_rx = None
+        while first_rx is None and not stop():
+            for msg, rx in self.port.poll(0.1):
+                if isinstance(msg, Gyro):
+                    self.gyro, self.gyro_fresh = msg, True
+                    first_rx = self.port.to_monotonic_s(rx)
+        if first_rx is None:
+            self.rec.close()
+            return 0
+        hb = HeartbeatSender(NodeId.FLIGHT, 0.0)
+        tick_ns = int(round(self.h * 1e9))
+        t0_ns = int(first_rx * 1e9) + tick_ns + 1_000_000
+
+        def base(n: int, release_ns: int) -> None:
+            self.absorb(self.port.poll(0.0))
+            self.tick(n, (time.monotonic_ns() - release_ns) / 1e9)
+
+        def housekeeping(n: int, release_ns: int) -> None:
+            beat = hb.poll(n * self.h, NodeState.SAFE if self.safe else NodeState.RUN)
+            if beat:
+                self.port.send(beat)
+
+        def on_tick(r: TickRecord) -> None:
+            if r.overrun:
+                self.overruns += 1
+                self.events.append(f"overrun: tick {r.tick} busy {r.busy_ns / 1e6:.2f} ms, "
+                                   f"{r.skipped} release(s) skipped")
+
+        per_hb = max(1, int(round(0.5 / self.h)))
+        sched = TickScheduler(
+            tick_ns,
+            [RateGroup("base", 1, 0, base), RateGroup("housekeeping", per_hb, 0, housekeeping)],
+            time.monotonic_ns, monotonic_sleep_until, on_tick=on_tick)
+        sched.run(t0_ns=t0_ns, stop=stop)
+        self.rec.close()
+        return 0
+
+
+# ============================================================================ entry point
+
+
+def _try_realtime_priority(name: str) -> str:
+    """SCHED_FIFO and locked memory when permitted; says what it got."""
+    notes = []
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+        notes.append("SCHED_FIFO 50")
+    except (PermissionError, OSError, AttributeError) as exc:
+        notes.append(f"default scheduler (SCHED_FIFO refused: {exc.__class__.__name__})")
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        if libc.mlockall(3) == 0:  # MCL_CURRENT | MCL_FUTURE
+            notes.append("memory locked")
+        else:
+            notes.append(f"memory not locked (errno {ctypes.get_errno()})")
+    except OSError:
+        notes.append("memory not locked")
+    return ", ".join(notes)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m hil.nodes", description=__doc__.split("\n")[0])
+    p.add_argument("node", choices=("plant", "flight"))
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
+    p.add_argument("--interface", default="socketcan")
+    p.add_argument("--channel", default="vcan0")
+    p.add_argument("--reply-timeout", type=float, default=0.5,
+                   help="lockstep: seconds the plant waits for THR_CMD(n)")
+    p.add_argument("--lost-after", type=int, default=3,
+                   help="ticks without THR_CMD before the plant closes every valve")
+    p.add_argument("--heartbeat-misses", type=int, default=3)
+    p.add_argument("--gyro-lost-after", type=int, default=3,
+                   help="ticks without a valid gyro sample before the flight's safe mode")
+    p.add_argument("--rt-priority", action="store_true", help="try SCHED_FIFO and mlockall")
+    p.add_argument("--bus-log", action="store_true", help="write NODE.bus.log (candump format)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stop = _Stop()
+    try:
+        sc = load_scenario(args.scenario)
+        port = _open_port(args, out, args.node)
+    except HilError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.rt_priority:
+        _say(args.node, _try_realtime_priority(args.node))
+    shell = (PlantShell if args.node == "plant" else FlightShell)(sc, port, out, args)
+    (out / f"{args.node}.ready").write_text(str(os.getpid()))
+    try:
+        run = shell.run_lockstep if args.mode == "lockstep" else shell.run_realtime
+        return run(stop)
+    finally:
+        port.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

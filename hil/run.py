@@ -1,0 +1,319 @@
+"""`hil run` and `hil up`: start the plant and flight processes on the bus, record, judge.
+
+``hil run SCENARIO.yaml [--mode lockstep|realtime] [--out DIR]`` runs a scenario to its end
+and writes ``DIR/summary.json``, ``DIR/bus.log`` (candump format: every frame on the bus,
+replayable with ``canplayer`` or ``python -m can.player``), ``DIR/run.rrd`` (rerun: truth and
+the flight's view on one timeline), ``DIR/plant.jsonl`` / ``DIR/flight.jsonl`` (per tick) and
+the processes' logs. Exit 0 when the scenario's expectations hold, 1 when not, 2 on a usage or
+configuration error.
+
+``hil up [--vehicle V | --scenario S] [--mode realtime|lockstep] [--viewer]`` brings the
+system up until Ctrl-C (or ``--duration``); faults are injected with ``hil fault``.
+
+Where the bus is socketcan and the kernel has no CAN, the whole command re-runs itself inside
+user-mode Linux (``hil.uml``), which sees the same files: the outputs land on the host's disk.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import yaml
+
+from hil.config import REPO_ROOT, load_scenario
+from hil.errors import BusError, UsageError
+from hil.recorder import RrdRecorder, merge_by_tick, read_jsonl
+from hil.summary import summarise
+
+INSIDE_UML_ENV = "HIL_INSIDE_UML"
+
+
+def _vcan_ready(channel: str) -> bool:
+    from hil.vcan import ensure_vcan, vcan_present
+
+    if vcan_present(channel):
+        return True
+    try:
+        ensure_vcan(channel)
+    except Exception:  # noqa: BLE001 - any failure means: not natively
+        return False
+    return vcan_present(channel)
+
+
+def maybe_in_uml(args, argv: list[str]) -> int | None:
+    """Re-run this command inside user-mode Linux when socketcan has no vcan here."""
+    if args.interface != "socketcan" or os.environ.get(INSIDE_UML_ENV):
+        return None
+    if _vcan_ready(args.channel):
+        return None
+    from hil.uml import run_in_uml
+
+    print("hil: this kernel has no CAN; running inside user-mode Linux (real vcan0 there)",
+          flush=True)
+    env = dict(os.environ, **{INSIDE_UML_ENV: "1"})
+    return run_in_uml([sys.executable, "-m", "hil.cli", *argv], env=env, cwd=os.getcwd())
+
+
+class _Tail:
+    """Follow a JSON lines file as it grows (only whole lines)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path, self.pos, self.buf = path, 0, ""
+
+    def read(self) -> list[dict]:
+        if not self.path.exists():
+            return []
+        with self.path.open(encoding="utf-8") as f:
+            f.seek(self.pos)
+            chunk = f.read()
+            self.pos = f.tell()
+        self.buf += chunk
+        *lines, self.buf = self.buf.split("\n")
+        out = []
+        for line in lines:
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                pass
+        return out
+
+
+class BusMonitor(threading.Thread):
+    """Logs every frame on the bus to a candump file (a passive third node)."""
+
+    def __init__(self, interface: str, channel: str, path: Path) -> None:
+        super().__init__(daemon=True)
+        import can
+
+        from bus.transport import BusConfig, open_bus
+
+        self.bus = open_bus(BusConfig(interface=interface, channel=channel))
+        self.writer = can.CanutilsLogWriter(str(path), channel=channel)
+        self.frames = 0
+        self._halt = threading.Event()
+
+    def run(self) -> None:
+        while not self._halt.is_set():
+            m = self.bus.recv(0.1)
+            if m is not None:
+                self.writer.on_message_received(m)
+                self.frames += 1
+
+    def stop(self) -> None:
+        self._halt.set()
+        self.join(2.0)
+        self.writer.stop()
+        self.bus.shutdown()
+
+
+def _node_cmd(node: str, scenario: Path, out: Path, args) -> list[str]:
+    cmd = [sys.executable, "-m", "hil.nodes", node, "--scenario", str(scenario),
+           "--out", str(out), "--mode", args.mode, "--interface", args.interface,
+           "--channel", args.channel]
+    if getattr(args, "rt_priority", False):
+        cmd.append("--rt-priority")
+    return cmd
+
+
+def _wait_ready(path: Path, proc: subprocess.Popen, timeout_s: float = 30.0) -> None:
+    t_end = time.monotonic() + timeout_s
+    while not path.exists():
+        if proc.poll() is not None:
+            raise BusError(f"{path.stem} process exited with {proc.returncode} before it was "
+                           f"ready; see {path.with_suffix('.log')}")
+        if time.monotonic() > t_end:
+            raise BusError(f"{path.stem} process not ready after {timeout_s:.0f} s")
+        time.sleep(0.02)
+
+
+def _stop(proc: subprocess.Popen, grace_s: float = 3.0) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
+              quiet: bool = False) -> dict:
+    """Start flight then plant, follow them until the plant ends, stop all, write outputs."""
+    sc = load_scenario(scenario_path)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in ("plant.jsonl", "flight.jsonl", "run.rrd", "summary.json", "plant.ready",
+                 "flight.ready", "bus.log"):
+        (out / name).unlink(missing_ok=True)
+    monitor = BusMonitor(args.interface, args.channel, out / "bus.log")
+    monitor.start()
+    rrd = RrdRecorder(out / "run.rrd", recording_id=f"{sc.cfg.name}")
+    if viewer:
+        rrd.spawn_viewer()
+    logs = {n: (out / f"{n}.log").open("w") for n in ("flight", "plant")}
+    procs: dict[str, subprocess.Popen] = {}
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    t_wall = time.monotonic()
+    killed_flight_at = getattr(args, "kill_flight_at", None)
+    try:
+        procs["flight"] = subprocess.Popen(_node_cmd("flight", scenario_path, out, args),
+                                           stdout=logs["flight"], stderr=subprocess.STDOUT,
+                                           env=env, cwd=REPO_ROOT)
+        _wait_ready(out / "flight.ready", procs["flight"])
+        procs["plant"] = subprocess.Popen(_node_cmd("plant", scenario_path, out, args),
+                                          stdout=logs["plant"], stderr=subprocess.STDOUT,
+                                          env=env, cwd=REPO_ROOT)
+        tails = {"plant": _Tail(out / "plant.jsonl"), "flight": _Tail(out / "flight.jsonl")}
+        n_ticks = int(round(sc.cfg.duration_s / sc.vehicle.timing.tick_s))
+        last_print = 0.0
+        while True:
+            done = procs["plant"].poll() is not None
+            new = [(s, r) for s, r in merge_by_tick(("plant", tails["plant"].read()),
+                                                     ("flight", tails["flight"].read()))]
+            for source, r in new:
+                rrd.log(source, r)
+                if not quiet:
+                    for e in r.get("events", []):
+                        print(f"  t={r['t_s']:7.1f} s  {source}: {e}", flush=True)
+                if source == "plant" and killed_flight_at is not None and \
+                        r["t_s"] >= killed_flight_at and procs["flight"].poll() is None:
+                    procs["flight"].kill()  # SIGKILL: the reliability check of DESIGN.md 10
+                    print(f"  t={r['t_s']:7.1f} s  hil: flight process killed (SIGKILL)",
+                          flush=True)
+            if new:
+                rrd.flush()
+            now = time.monotonic()
+            if not quiet and now - last_print > 2.0 and new:
+                tick = max((r["tick"] for s, r in new if s == "plant"), default=0)
+                print(f"  {sc.cfg.name}: tick {tick}/{n_ticks} "
+                      f"({tick * sc.vehicle.timing.tick_s:.0f} s simulated, "
+                      f"{now - t_wall:.0f} s wall)", flush=True)
+                last_print = now
+            if done:
+                break
+            time.sleep(0.05)
+    except KeyboardInterrupt:
+        print("hil: interrupted, stopping the processes", file=sys.stderr)
+    finally:
+        for p in procs.values():
+            _stop(p)
+        monitor.stop()
+        for f in logs.values():
+            f.close()
+    # Everything the processes wrote, up to their last tick (also after a kill).
+    plant_records = list(read_jsonl(out / "plant.jsonl"))
+    flight_records = list(read_jsonl(out / "flight.jsonl"))
+    wall = time.monotonic() - t_wall
+    sim = plant_records[-1]["t_s"] if plant_records else 0.0
+    summary = summarise(
+        scenario=sc.cfg.name, vehicle=sc.vehicle.name, mode=args.mode,
+        plant_records=[r for r in plant_records if not r.get("final")] or plant_records,
+        flight_records=flight_records, expect=sc.cfg.expect,
+        extra={"wall_s": round(wall, 3), "sim_s": sim,
+               "speed_x_realtime": round(sim / wall, 2) if wall > 0 else None,
+               "bus_frames_logged": monitor.frames,
+               "exit_codes": {k: p.returncode for k, p in procs.items()},
+               "where": "user-mode Linux" if os.environ.get(INSIDE_UML_ENV) else "native"},
+    )
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def _print_verdict(s: dict, out: Path) -> None:
+    print(f"{s['scenario']} ({s['vehicle']}, {s['mode']}, {s['where']}): "
+          f"{s['ticks']} ticks, {s['speed_x_realtime']}x real time")
+    for d in s["detections"]:
+        lat = f"{d['latency_s']:.1f} s" if d["latency_s"] is not None else "-"
+        print(f"  detection: {d['type']} {d['thruster']} at {d['t_s']:.1f} s, latency {lat}, "
+              f"{'correct' if d['correct'] else 'WRONG'}")
+    for f in s["missed_faults"]:
+        print(f"  missed: {f['type']} {f['thruster']} at {f['t_s']:.1f} s")
+    print(f"  compute ms p50/p99/max: {s['compute_ms']['p50']}/{s['compute_ms']['p99']}/"
+          f"{s['compute_ms']['max']}, overruns {s['overruns']}")
+    for line in s["expectation_failures"]:
+        print(f"  FAILED: {line}")
+    print(f"  expectations {'met' if s['expectations_met'] else 'NOT met'}; outputs in {out}")
+
+
+def _cmd_run(args) -> int:
+    scenario = Path(args.scenario)
+    sc = load_scenario(scenario)  # config errors exit 2 before anything starts
+    out = Path(args.out or Path("runs") / sc.cfg.name)
+    argv = ["run", str(scenario.resolve()), "--mode", args.mode, "--out", str(out.resolve()),
+            "--interface", args.interface, "--channel", args.channel]
+    if args.kill_flight_at is not None:
+        argv += ["--kill-flight-at", str(args.kill_flight_at)]
+    rc = maybe_in_uml(args, argv)
+    if rc is not None:
+        return rc
+    s = supervise(scenario.resolve(), out.resolve(), args)
+    _print_verdict(s, out)
+    return 0 if s["expectations_met"] else 1
+
+
+def _cmd_up(args) -> int:
+    if args.scenario:
+        scenario = Path(args.scenario).resolve()
+    else:
+        from hil.config import VEHICLE_DIR
+
+        if not (VEHICLE_DIR / f"{args.vehicle}.yaml").exists():
+            raise UsageError(f"hil up: --vehicle: expected one of "
+                             f"{sorted(p.stem for p in VEHICLE_DIR.glob('*.yaml'))}, "
+                             f"got {args.vehicle!r}")
+        tmp = Path(tempfile.mkdtemp(prefix="hil-up-", dir=Path(args.out).parent
+                                    if args.out else None))
+        scenario = tmp / "up.yaml"
+        scenario.write_text(yaml.safe_dump({"name": f"up-{args.vehicle}",
+                                            "vehicle": args.vehicle,
+                                            "duration_s": float(args.duration)}))
+    out = Path(args.out or "runs/up").resolve()
+    argv = ["up", "--scenario", str(scenario), "--mode", args.mode, "--out", str(out),
+            "--interface", args.interface, "--channel", args.channel]
+    rc = maybe_in_uml(args, argv)
+    if rc is not None:
+        return rc
+    s = supervise(scenario, out, args, viewer=args.viewer)
+    _print_verdict(s, out)
+    return 0
+
+
+def _bus_args(p) -> None:
+    p.add_argument("--interface", default="socketcan",
+                   help="python-can interface (default socketcan; udp_multicast, pcan, ...)")
+    p.add_argument("--channel", default="vcan0", help="bus channel (default vcan0)")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("run", help="run a scenario over the bus and judge it (exit 0/1/2)")
+    p.add_argument("scenario", metavar="SCENARIO.yaml")
+    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
+    p.add_argument("--out", metavar="DIR", help="output folder (default runs/<scenario name>)")
+    p.add_argument("--kill-flight-at", type=float, metavar="T",
+                   help="SIGKILL the flight process at simulated time T (safe-state check)")
+    _bus_args(p)
+    p.set_defaults(func=_cmd_run)
+
+    u = sub.add_parser("up", help="bring plant and flight up until Ctrl-C (inject with hil fault)")
+    u.add_argument("--vehicle", default="generic")
+    u.add_argument("--scenario", help="scenario file instead of a bare vehicle")
+    u.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")
+    u.add_argument("--duration", type=float, default=3600.0, help="seconds (default 3600)")
+    u.add_argument("--out", metavar="DIR", help="output folder (default runs/up)")
+    u.add_argument("--viewer", action="store_true", help="open the rerun viewer live")
+    u.add_argument("--kill-flight-at", type=float, help=argparse_suppress())
+    _bus_args(u)
+    u.set_defaults(func=_cmd_up)
+
+
+def argparse_suppress() -> str:
+    import argparse
+
+    return argparse.SUPPRESS
