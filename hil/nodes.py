@@ -28,11 +28,21 @@ import os
 import signal
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from bus.catalog import AckReason, AckStatus, DetectedFault, FaultAction, FaultKind, NodeState
+from bus.catalog import (
+    CATALOG,
+    AckReason,
+    AckStatus,
+    Catalog,
+    DetectedFault,
+    FaultAction,
+    FaultKind,
+    NodeState,
+)
 from bus.catalog import Node as NodeId
 from bus.codec import FaultAck, FaultCmd, FdirStatus, FlightTiming, Gyro, ThrCmd
 from bus.protocol import (
@@ -46,6 +56,7 @@ from bus.protocol import (
     PlantLockstep,
     TickRequest,
 )
+from bus.receiver import Receiver
 from bus.transport import BusConfig, BusLogger, Port, open_bus
 from hil.config import Scenario, load_scenario
 from hil.errors import FaultCommandError, HilError
@@ -79,10 +90,24 @@ class _Stop:
         return self.flag
 
 
+def _lockstep_receiver(reply_timeout_s: float) -> Receiver:
+    """A receiver whose age limits follow the lockstep, not the wall clock.
+
+    In lockstep the plant is the time master and the lockstep protocol enforces the THR_CMD
+    deadline; a frame that waited in the socket while its reader computed (a slow or loaded
+    machine) is not stale in simulated time, and dropping it would make a run depend on the
+    machine. CRC, counter, length, range and completeness checks stay as they are.
+    """
+    limit = max(10 * reply_timeout_s, 5.0)
+    cat = Catalog(tuple(replace(f, deadline_s=max(f.deadline_s, limit)) for f in CATALOG.frames))
+    return Receiver(catalog=cat)
+
+
 def _open_port(args, out: Path, name: str) -> Port:
     cfg = BusConfig(interface=args.interface, channel=args.channel)
     logger = BusLogger(out / f"{name}.bus.log", channel=args.channel) if args.bus_log else None
-    return Port(open_bus(cfg), logger=logger)
+    receiver = _lockstep_receiver(args.reply_timeout) if args.mode == "lockstep" else None
+    return Port(open_bus(cfg), receiver=receiver, logger=logger)
 
 
 def _say(name: str, text: str) -> None:
