@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "hil.uml",
     "flight.cli",
     "hil.run",
+    "hil.panel",
 )
 
 

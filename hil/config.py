@@ -166,7 +166,8 @@ class ControllerCfg(_Model):
 class AllocatorCfg(_Model):
     """Minimum-fuel LP allocation (seed 004 section 3)."""
 
-    solver: Literal["highs", "simplex", "linprog"] = "highs"
+    # Dense bounded dual simplex with warm start: fastest here (bench/bench_allocator.py).
+    solver: Literal["highs", "simplex", "linprog"] = "simplex"
     carry_remainder: bool = True
     # Roll pairs used in orbit-correction mode (seed 004: (15,19), (17,21), (16,20), (18,22)).
     roll_pairs: list[tuple[str, str]] = []
@@ -380,7 +381,9 @@ class PlantOverridesCfg(_Model):
     thrust_scale_per_thruster: dict[str, PosFloat] = {}
     direction_error_deg: NonNegFloat = 0.0
     command_latency_ms: NonNegFloat = 0.0
-    step_s: PosFloat = 0.001
+    # Each step gets the exact thrust impulse (plant.core), so 10 ms loses nothing of the
+    # profile's ms features; RK4 error at w*h ~ 1e-3 is negligible.
+    step_s: PosFloat = 0.01
 
 
 class ExpectedDetection(_Model):

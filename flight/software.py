@@ -1,0 +1,257 @@
+"""The flight software's tick as one pure object (DESIGN section 3 pipeline).
+
+``FlightSoftware(vehicle, target=None, initial_attitude=None).step(tick, gyro_B_rad_s)`` runs,
+in order: read the gyro sample; observer update (seed 003 eqs. 7-8); detector update with the
+commands in force over the last tick (seeds 000, 003; Kalman leak test, seed 002); FDIR response;
+controller (seed 004 phase plane or seed 002 s-law); allocator (LP, quantisation); output.
+It reads no clock: the tick number is an argument, the time is ``tick * h``. The stages are
+separate methods listed in ``STAGES`` so that the process shell can time each one::
+
+    fs.begin(tick, sample)
+    for name in fs.STAGES:
+        t0 = clock(); getattr(fs, "stage_" + name)(); stage_ns[name] = clock() - t0
+    out = fs.finish()
+
+``step`` does exactly that without timing.
+
+Timing convention: the sample read at tick n is the rate at ``t_n`` (an integrating gyro gives
+the mean over the last tick); the commands of tick n are applied at ``t_n`` plus the nominal
+command latency and act until the next sample; the onboard model's prediction for ``t_n+1`` is
+made at the end of tick n from the observer's estimate and those commands.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from flight.allocator import Allocation, Allocator
+from flight.attitude import AttitudeEstimate, q_rotate_inv
+from flight.controller import Controller, RateDemand
+from flight.detector import STUCK_ON, Detection, Detector
+from flight.fdir import Fdir
+from flight.kalman import DisturbanceKalman
+from flight.observer import AdaptiveObserver, ObserverOutput
+from flight.onboard_model import OnboardModel, Prediction
+from hil.config import AttitudeCfg, VehicleArrays, VehicleCfg
+
+_Y_ORBIT = np.array([0.0, 1.0, 0.0])  # local vertical in the orbit frame (seed 003 eq. 9)
+
+
+@dataclass(frozen=True)
+class TickOutput:
+    """Everything one flight tick produces. Shapes: N thrusters, M manifolds.
+
+    Commands: ``on_ms`` (N,) int THR_CMD on-times; ``manifold_open`` (M,) bool.
+    FDIR: ``detection`` (new this tick, or None); ``fdir_state``; ``safe_mode``;
+    ``available`` (N,) bool.
+    Telemetry (body axes, rad/s unless named): ``omega_meas`` (3,), ``omega_est`` (3,) observer's
+    rigid estimate, ``omega_pred`` (3,) onboard model's prediction for this sample, ``residual``
+    (3,) = omega_est - omega_pred, ``gamma_est`` (3,) flex at the gyro, ``freq_est_hz`` (3,),
+    ``xi`` (N,), ``rho_on`` (N,), ``rho_off`` (N,), ``threshold_on``, ``threshold_off``,
+    ``att_err_rad`` (3,) angle errors nu, ``rate_err`` (3,), ``dw_down`` (3,), ``dw_up`` (3,)
+    controller bounds, ``dw_pred`` (3,) allocator's predicted rate change, ``feasible``,
+    ``disturbance_rad_s2`` (3,) Kalman estimate (zeros when disabled), ``attitude_BO`` (4,).
+    """
+
+    tick: int
+    on_ms: np.ndarray
+    manifold_open: np.ndarray
+    detection: Detection | None
+    fdir_state: str
+    safe_mode: bool
+    available: np.ndarray
+    omega_meas: np.ndarray
+    omega_est: np.ndarray
+    omega_pred: np.ndarray
+    residual: np.ndarray
+    gamma_est: np.ndarray
+    freq_est_hz: np.ndarray
+    xi: np.ndarray
+    rho_on: np.ndarray
+    rho_off: np.ndarray
+    threshold_on: float
+    threshold_off: float
+    att_err_rad: np.ndarray
+    rate_err: np.ndarray
+    dw_down: np.ndarray
+    dw_up: np.ndarray
+    dw_pred: np.ndarray
+    feasible: bool
+    disturbance_rad_s2: np.ndarray
+    attitude_BO: np.ndarray
+
+
+class FlightSoftware:
+    """Flight tick for one vehicle; pure and deterministic (module doc).
+
+    ``target`` and ``initial_attitude``: ``AttitudeCfg`` or quaternions (4,) relative to the orbit
+    frame (the initial attitude is what the flight believes at tick 0, e.g. from the star
+    tracker; default identity).
+    """
+
+    STAGES = ("observer", "detector", "controller", "allocator", "output")
+
+    def __init__(self, vehicle: VehicleCfg, target: AttitudeCfg | np.ndarray | None = None,
+                 initial_attitude: AttitudeCfg | np.ndarray | None = None) -> None:
+        self.vehicle = vehicle
+        fc = vehicle.flight
+        self.arrays = VehicleArrays.from_vehicle(vehicle)
+        self.h = float(vehicle.timing.tick_s)
+        self.n = len(self.arrays.names)
+        self.target_TO = _quat(target)
+        self.model = OnboardModel(vehicle)
+        self.observer = AdaptiveObserver(fc.observer, self.h)
+        self.detector = Detector(self.arrays.mu_B_rad_s2, fc.detector, self.arrays.names)
+        self.fdir = Fdir(fc.fdir, self.arrays.manifold_of, len(self.arrays.manifolds))
+        self.kalman = (DisturbanceKalman(fc.kalman, self.h, self.detector.e_B)
+                       if fc.kalman.enabled else None)
+        self.controller = Controller(vehicle, self.arrays)
+        self.allocator = Allocator(vehicle, self.arrays)
+        self.attitude = AttitudeEstimate(vehicle.orbit.rate_rad_s, _quat(initial_attitude))
+        self.integrating = vehicle.gyro.kind == "integrating"
+        self._pred: Prediction | None = None
+        self._free = np.zeros(3)
+        self._phi_meas = np.zeros(3)
+        self._tick = -1
+
+    # ------------------------------------------------------------------ pipeline
+
+    def step(self, tick: int, gyro_B_rad_s: np.ndarray) -> TickOutput:
+        """One whole tick (all stages in order)."""
+        self.begin(tick, gyro_B_rad_s)
+        for name in self.STAGES:
+            getattr(self, "stage_" + name)()
+        return self.finish()
+
+    def begin(self, tick: int, gyro_B_rad_s: np.ndarray) -> None:
+        """Stage "read gyro": take the newest sample (3,) for tick ``tick``."""
+        if tick <= self._tick:
+            raise ValueError(f"tick: expected > {self._tick}, got {tick}")
+        self._tick = int(tick)
+        self._y = np.asarray(gyro_B_rad_s, dtype=float).reshape(3)
+        self._det: Detection | None = None
+
+    def stage_observer(self) -> None:
+        """Observer update with the last tick's model increments; attitude propagation."""
+        u = self._pred.dw_thr_B_rad_s if self._pred is not None else np.zeros(3)
+        self._obs: ObserverOutput = self.observer.update(self._y, self._free, u)
+        if self._pred is None:
+            self.model.resync(self._obs.omega_hat_B_rad_s)
+        # Strapdown attitude from the measured rate (the integrating gyro's mean rate times h is
+        # its angle increment).
+        if self._tick > 0 or self.integrating:
+            if self.integrating:
+                self.attitude.update_increment(self._y * self.h, self.h)
+            else:
+                self.attitude.update(self._y, self.h)
+        self._phi_meas = self._phi_meas + self._y * self.h
+
+    def stage_detector(self) -> None:
+        """Residual, integral residuals, Kalman leak test, FDIR response."""
+        w_hat = self._obs.omega_hat_B_rad_s
+        pred = self._pred
+        if pred is None:
+            self._omega_pred = w_hat.copy()
+            self._det_out = self.detector.step(self._tick, np.zeros(3), np.zeros(self.n, bool),
+                                               self.fdir.available)
+            # The first tick carries no residual: do not let it age the residuals.
+        else:
+            self._omega_pred = pred.omega_calc_B_rad_s
+            self._det_out = self.detector.step(self._tick, w_hat - self._omega_pred, pred.active,
+                                               self.fdir.available)
+        det = self._det_out.detection
+        if self.kalman is not None and pred is not None:
+            burn_dw = self.arrays.mu_B_rad_s2.T @ pred.burn_s
+            on_axis = np.abs(self.detector.e_B[pred.active]).max(axis=0, initial=0.0) > 0.1
+            self.kalman.update(self._phi_meas, burn_dw, pred.dangle_thr_B_rad, ~on_axis)
+            if det is None and self.detector.latched is None:
+                leak = self.kalman.leak_test(self.fdir.available)
+                if leak is not None:
+                    i = leak.thruster
+                    group = tuple(j for j in self.detector.groups[i] if self.fdir.available[j])
+                    det = Detection(tick=self._tick, thruster=i, kind=STUCK_ON, group=group,
+                                    names=tuple(self.arrays.names[j] for j in group),
+                                    rho=leak.projection_rad_s2, source="kalman")
+                    self.detector.latched = det
+        if det is not None:
+            self._det = det
+            resp = self.fdir.handle(det.kind, det)
+            if resp.rebaseline:
+                self.rebaseline()
+
+    def stage_controller(self) -> None:
+        """Seed 004 phase plane (or seed 002 s-law) on the estimated attitude and rigid rate."""
+        self._demand: RateDemand = self.controller.demand(
+            self.attitude.Lambda_BO, self._obs.omega_hat_B_rad_s, self.target_TO)
+
+    def stage_allocator(self) -> None:
+        """LP allocation over the available thrusters, quantisation, prediction."""
+        av = self.fdir.available
+        if self.fdir.safe_mode or not av.any():
+            self._alloc = None
+            self._on_ms = np.zeros(self.n, dtype=int)
+            return
+        d = self._demand
+        self._alloc: Allocation | None = self.allocator.allocate(
+            d.dw_down_B_rad_s, d.dw_up_B_rad_s, av)
+        self._on_ms = np.asarray(self._alloc.on_ms, dtype=int)
+
+    def stage_output(self) -> None:
+        """Onboard-model prediction for the next sample with this tick's commands."""
+        w_hat = self._obs.omega_hat_B_rad_s
+        j_B = q_rotate_inv(self.attitude.Lambda_BO, _Y_ORBIT)
+        t_s = self._tick * self.h
+        self._free = self.model.free_increment(w_hat, j_B, t_s)
+        self._pred = self.model.predict(w_hat, self._on_ms / 1000.0, j_B, t_s)
+
+    def finish(self) -> TickOutput:
+        """Assemble the tick's output (after every stage ran)."""
+        d, o, dt = self._demand, self._obs, self._det_out
+        alloc = self._alloc
+        k = self.kalman
+        return TickOutput(
+            tick=self._tick, on_ms=self._on_ms.copy(), manifold_open=self.fdir.manifold_open.copy(),
+            detection=self._det, fdir_state=self.fdir.state, safe_mode=self.fdir.safe_mode,
+            available=self.fdir.available, omega_meas=self._y.copy(),
+            omega_est=o.omega_hat_B_rad_s, omega_pred=np.array(self._omega_pred),
+            residual=o.omega_hat_B_rad_s - self._omega_pred, gamma_est=o.gamma_hat_B_rad_s,
+            freq_est_hz=o.freq_hat_hz, xi=dt.xi, rho_on=dt.rho_on, rho_off=dt.rho_off,
+            threshold_on=float(self.detector.cfg.threshold_on),
+            threshold_off=float(self.detector.cfg.threshold_off),
+            att_err_rad=d.nu_B_rad.copy(), rate_err=d.rate_err_B_rad_s.copy(),
+            dw_down=d.dw_down_B_rad_s.copy(), dw_up=d.dw_up_B_rad_s.copy(),
+            dw_pred=np.zeros(3) if alloc is None else alloc.dw_pred_B_rad_s.copy(),
+            feasible=True if alloc is None else bool(alloc.feasible),
+            disturbance_rad_s2=np.zeros(3) if k is None else k.disturbance_B_rad_s2,
+            attitude_BO=self.attitude.Lambda_BO.copy(),
+        )
+
+    # ------------------------------------------------------------------ events
+
+    def rebaseline(self) -> None:
+        """After an FDIR reconfiguration: restart the residuals and the model's own state."""
+        self.detector.rebaseline()
+        self.model.resync(self._obs.omega_hat_B_rad_s)
+        if self.kalman is not None:
+            self.kalman.reset(self._phi_meas, self._obs.omega_hat_B_rad_s)
+
+    def peer_lost(self) -> None:
+        """The shell lost the plant's heartbeat: safe mode (all valves closed)."""
+        self.fdir.handle("peer_lost")
+
+    def peer_back(self) -> None:
+        """The plant is back: leave safe mode, restart the residuals."""
+        resp = self.fdir.handle("peer_back")
+        if resp.rebaseline and getattr(self, "_obs", None) is not None:
+            self.rebaseline()
+
+
+def _quat(att: AttitudeCfg | np.ndarray | None) -> np.ndarray:
+    if att is None:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    if isinstance(att, AttitudeCfg):
+        return att.quaternion()
+    q = np.asarray(att, dtype=float).reshape(4)
+    return q / np.linalg.norm(q)
