@@ -75,7 +75,7 @@ def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float)
 
 
 def _request_id() -> int:
-    return (int(time.time() * 1000) + next(_SEQ)) % 65536
+    return (int(time.time() * 1000) + next(_SEQ)) % 256  # FAULT_CMD.request_id is 8 bits
 
 
 _SEQ = itertools.count()

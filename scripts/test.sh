@@ -1,7 +1,11 @@
 #!/usr/bin/env bash
 # The test command: set-up, then the unit tests, then the integration tests over a real vcan0
-# (native where the kernel has CAN, otherwise inside user-mode Linux).
+# (native where the kernel has CAN, otherwise inside user-mode Linux: never skipped).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-.venv/bin/python -m pytest -m "not vcan" -q "$@"
+export RERUN_ANALYTICS=0
+echo "== unit tests"
+.venv/bin/python -m pytest -m "not vcan" -q -p no:cacheprovider "$@"
+echo "== integration tests over vcan0"
+.venv/bin/hil vcan exec -- .venv/bin/python -m pytest -m vcan -q -p no:cacheprovider "$@"
