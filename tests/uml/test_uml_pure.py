@@ -27,7 +27,7 @@ MODULES = [
 ]
 
 
-def script(argv=("true",), env=None, cwd="/work/x", **kw) -> str:
+def script(argv=("true",), env=None, cwd="/srv/project", **kw) -> str:
     return uml.build_init_script(
         argv=list(argv), cwd=cwd, env=env if env is not None else {"PATH": "/usr/bin"},
         status_path="/tmp/hil-uml-abc/status", modules=kw.pop("modules", MODULES),
