@@ -20,25 +20,10 @@ import math
 
 import numpy as np
 
+from hil.quaternion import q_conj, q_mul
+
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 Z_AXIS = np.array([0.0, 0.0, 1.0])
-
-
-def q_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product ``p (x) q`` of two scalar-first quaternions, shape (4,)."""
-    p0, p1, p2, p3 = p
-    q0, q1, q2, q3 = q
-    return np.array([
-        p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3,
-        p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2,
-        p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1,
-        p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0,
-    ])
-
-
-def q_conj(q: np.ndarray) -> np.ndarray:
-    """Conjugate ``q~`` (the inverse of a unit quaternion), shape (4,)."""
-    return np.array([q[0], -q[1], -q[2], -q[3]])
 
 
 def q_normalise(q: np.ndarray) -> np.ndarray:

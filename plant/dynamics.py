@@ -30,23 +30,10 @@ import math
 
 import numpy as np
 
+from hil.quaternion import q_conj as quat_conj
+from hil.quaternion import q_mul as quat_mul
+
 # --------------------------------------------------------------------------- quaternions
-
-
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product ``a (x) b`` of scalar-first quaternions (4,)."""
-    a0, a1, a2, a3 = a
-    b0, b1, b2, b3 = b
-    return np.array([
-        a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
-        a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-        a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
-        a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0,
-    ])
-
-
-def quat_conj(q: np.ndarray) -> np.ndarray:
-    return np.array([q[0], -q[1], -q[2], -q[3]])
 
 
 def quat_to_dcm(q: np.ndarray) -> np.ndarray:
