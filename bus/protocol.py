@@ -123,7 +123,10 @@ class PlantLockstep:
     """Plant side of the lockstep: SYNC(n) out, THR_CMD(n) in before the deadline.
 
     ``n_thrusters``: size of the safe command. ``manifold_enable_safe``: the mask applied on
-    a single miss before any command was received.
+    a single miss before any command was received. ``lost_reply_timeout_s``: once the peer is
+    declared lost (``lost_after_misses`` misses in a row), the plant waits only this long for
+    each later tick's command, so a dead flight does not slow the run down by a whole
+    ``reply_timeout_s`` per tick; the first command that comes back restores the full wait.
     """
 
     def __init__(
@@ -133,16 +136,19 @@ class PlantLockstep:
         lost_after_misses: int = 3,
         tick_s: float = 0.2,
         manifold_enable_safe: int = 0,
+        lost_reply_timeout_s: float = 0.05,
     ):
         for name, value, ok in (
             ("n_thrusters", n_thrusters, n_thrusters >= 1),
             ("reply_timeout_s", reply_timeout_s, reply_timeout_s > 0),
             ("lost_after_misses", lost_after_misses, lost_after_misses >= 1),
+            ("lost_reply_timeout_s", lost_reply_timeout_s, lost_reply_timeout_s > 0),
         ):
             if not ok:
                 raise ConfigError("PlantLockstep", name, "> 0", value)
         self.n_thrusters = n_thrusters
         self.reply_timeout_s = reply_timeout_s
+        self.lost_reply_timeout_s = min(lost_reply_timeout_s, reply_timeout_s)
         self.lost_after_misses = lost_after_misses
         self.tick_s = tick_s
         self.state = "idle"
@@ -170,7 +176,8 @@ class PlantLockstep:
         self._go("begin")
         self.tick = tick
         self.sent_s = now_s
-        self.deadline_s = now_s + self.reply_timeout_s
+        self.deadline_s = now_s + (self.lost_reply_timeout_s if self.lost
+                                   else self.reply_timeout_s)
         self._result = None
         ms = round(tick * self.tick_s * 1000) if sim_time_ms is None else sim_time_ms
         return Sync(tick, ms)
@@ -206,6 +213,11 @@ class PlantLockstep:
             self.tick, safe, True, "command lost: manifolds closed" if lost else "deadline missed"
         )
         return events
+
+    @property
+    def lost(self) -> bool:
+        """The peer is declared lost: ``lost_after_misses`` or more misses in a row."""
+        return self.consecutive_misses >= self.lost_after_misses
 
     @property
     def result(self) -> TickResult | None:

@@ -157,3 +157,20 @@ def test_heartbeat_sender_skips_missed_slots():
     assert s.poll(1.7, NodeState.RUN) is not None and s.next_s == 2.0
     hb = s.poll(2.0, NodeState.SAFE, rx_ok=70000, rx_bad=3, deadline_miss=5000)
     assert (hb.rx_ok, hb.deadline_miss, hb.state) == (70000 - 65536, 5000 - 4096, NodeState.SAFE)
+
+
+def test_a_lost_peer_is_waited_for_briefly_until_it_answers_again():
+    plant = PlantLockstep(2, reply_timeout_s=2.0, lost_after_misses=3, lost_reply_timeout_s=0.05)
+    t = 0.0
+    for n in range(3):
+        plant.begin_tick(n, t)
+        assert plant.deadline_s == pytest.approx(t + 2.0)
+        t = plant.deadline_s
+        plant.poll(t)
+    assert plant.lost and plant.result.command.manifold_enable == 0
+    plant.begin_tick(3, t)
+    assert plant.deadline_s == pytest.approx(t + 0.05)  # the short wait once lost
+    evs = plant.on_message(ThrCmd(3, (1, 0), 1, 0), t + 0.01)
+    assert isinstance(evs[0], CommandReady) and not plant.lost
+    plant.begin_tick(4, t + 0.2)
+    assert plant.deadline_s == pytest.approx(t + 2.2)  # the full wait is back
