@@ -52,8 +52,12 @@ class Prediction:
 
     ``omega_calc_B_rad_s`` (3,): predicted rate at the next sample; ``dw_thr_B_rad_s`` (3,): the
     thrusters' share of it; ``burn_s`` (N,): equivalent burn of each thruster inside the interval;
-    ``active`` (N,) bool: the thruster was meant to produce thrust inside the interval (the
-    "commanded" flag of seed 000 tables 1-2); ``dangle_thr_B_rad`` (3,): the thrusters' share of
+    ``active`` (N,) bool: the thruster was commanded in the tick that governs the interval
+    (the "commanded" flag of seed 000 tables 1-2: tau[n-1] != 0). The tail of the previous
+    tick's pulse that reaches into the interval does not make it "commanded": in such a tick a
+    stuck-on thruster shows almost its whole effect, so the tick is evidence about "stuck on"
+    and belongs to rho_off; ``burning`` (N,) bool: any thrust of the thruster expected inside
+    the interval, tails included (the Kalman leak test uses only intervals with none); ``dangle_thr_B_rad`` (3,): the thrusters' share of
     the attitude increment over the interval (used by the Kalman filter, seed 002).
     """
 
@@ -62,6 +66,7 @@ class Prediction:
     burn_s: np.ndarray
     active: np.ndarray
     dangle_thr_B_rad: np.ndarray
+    burning: np.ndarray
 
 
 class BurnTimeline:
@@ -203,6 +208,7 @@ class OnboardModel:
             omega_calc_B_rad_s=omega_calc,
             dw_thr_B_rad_s=dw_thr,
             burn_s=burn,
-            active=eff > 0.0,
+            active=np.asarray(tau_cmd_s, dtype=float) > 0.0,
             dangle_thr_B_rad=self.mu_B_rad_s2.T @ angle,
+            burning=eff > 0.0,
         )

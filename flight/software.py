@@ -164,7 +164,7 @@ class FlightSoftware:
         det = self._det_out.detection
         if self.kalman is not None and pred is not None:
             burn_dw = self.arrays.mu_B_rad_s2.T @ pred.burn_s
-            on_axis = np.abs(self.detector.e_B[pred.active]).max(axis=0, initial=0.0) > 0.1
+            on_axis = np.abs(self.detector.e_B[pred.burning]).max(axis=0, initial=0.0) > 0.1
             self.kalman.update(self._phi_meas, burn_dw, pred.dangle_thr_B_rad, ~on_axis)
             if det is None and self.detector.latched is None:
                 leak = self.kalman.leak_test(self.fdir.available)
