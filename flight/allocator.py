@@ -33,6 +33,9 @@ that fails to converge falls back to ``linprog``. The core reads no clock: timin
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -208,6 +211,20 @@ def linprog_solve(
     return ITERATION_LIMIT, np.zeros(len(c)), 0
 
 
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Silence file descriptor 1 (C-level prints) for the duration of the block."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 class _HighsWarm:
     """A HiGHS model with fixed matrix and costs; bounds change per solve (warm start)."""
 
@@ -216,7 +233,8 @@ class _HighsWarm:
 
         self._hs = highspy
         m, n = A.shape
-        h = highspy.Highs()
+        with _quiet_stdout():  # highspy >= 1.16 prints its banner in the constructor
+            h = highspy.Highs()
         h.setOptionValue("output_flag", False)
         h.setOptionValue("presolve", "off")
         h.setOptionValue("solver", "simplex")

@@ -147,19 +147,26 @@ class Detector:
         self.latched = None
         self._hold = self.hold_ticks if hold_ticks is None else int(hold_ticks)
 
-    def project(self, dw_B_rad_s: np.ndarray) -> tuple[np.ndarray, float, bool]:
-        """Steps 1-2: dead zone, normalisation and projections xi (N,)."""
+    def project(self, dw_B_rad_s: np.ndarray,
+                commanded_abs_rad_s: float = 0.0) -> tuple[np.ndarray, float, bool]:
+        """Steps 1-2: dead zone, normalisation and projections xi (N,).
+
+        The dead zone is ``dead_zone_rad_s + relative_dead_zone * commanded_abs_rad_s``
+        (``commanded_abs_rad_s``: sum of the commanded thrusters' rate-change magnitudes).
+        """
         dw = np.asarray(dw_B_rad_s, dtype=float)
         norm = float(np.linalg.norm(dw))
-        if norm < self.cfg.dead_zone_rad_s or norm == 0.0:
+        dz = self.cfg.dead_zone_rad_s + self.cfg.relative_dead_zone * float(commanded_abs_rad_s)
+        if norm < dz or norm == 0.0:
             return np.zeros(self.n), norm, True
         return self.e_B @ (dw / norm), norm, False
 
     def step(self, tick: int, dw_B_rad_s: np.ndarray, active: np.ndarray,
-             available: np.ndarray | None = None) -> DetectorOutput:
+             available: np.ndarray | None = None,
+             commanded_abs_rad_s: float = 0.0) -> DetectorOutput:
         act = np.asarray(active, dtype=bool)
         avail = np.ones(self.n, dtype=bool) if available is None else np.asarray(available, bool)
-        xi, norm, dz = self.project(dw_B_rad_s)
+        xi, norm, dz = self.project(dw_B_rad_s, commanded_abs_rad_s)
         if self._hold > 0:
             self._hold -= 1
             return self._out(np.zeros(self.n), norm, dz, None, held=True)

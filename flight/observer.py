@@ -45,6 +45,14 @@ The schema's default gains (0.5, 0.5, 0.05, 0.05, 0.01, 0.01, 0.1, 0.1) are slow
 at 0.2 Hz, 0.98 at 0.1 Hz) and W5 = 0.01 barely corrects on switching ticks: on a rigid vehicle
 they leave residual spikes of ~1e-3 rad/s after long firings (seen on `generic`).
 
+``mu^`` is identified only at switching instants proper (the channel's thrust increment steps
+by more than half its size: a thruster turned on or off), and kept within ``mu_bound``
+(config, default 5; a vehicle sets its physical bound, e.g. 0.5 where the flex part at the
+gyro of a pulse is a fraction of the rigid part): under steady firing the regressor
+v = u - A/2 u(n-1) is small and the normalised step would learn a thrust error of the rigid model (e.g. thrust 15 % below nominal, seed 003's
+flight test) as "influence", drive mu^ to non-physical values and make the next burst of
+pulses look like a failure (found on S003-flex).
+
 ``kind = rigid`` keeps only ``w^`` (no flex state): ``w^ = w^- + W1 eps`` on quiet ticks,
 ``W5 eps`` on switching ticks. With W1 = W5 = 1 it returns the measurement itself, which is
 seed 000's "predict from the measured rate".
@@ -61,6 +69,9 @@ from hil.config import ObserverCfg
 
 # Forgetting of the running mean squares that normalise the parameter steps.
 _P_FORGET = 0.95
+# A tick is a switching instant for the mu^ identification when the channel's thrust
+# increment changes by more than this fraction of its size.
+_EDGE = 0.5
 
 
 @dataclass(frozen=True)
@@ -91,7 +102,7 @@ class AdaptiveObserver:
 
     def __init__(self, cfg: ObserverCfg, tick_s: float, kind: str | None = None,
                  freq_bounds_hz: tuple[float, float] | None = None,
-                 noise_floor_rad_s: float = 1e-7) -> None:
+                 noise_floor_rad_s: float = 1e-7, mu_bound: float | None = None) -> None:
         self.kind = kind or cfg.kind
         if self.kind not in ("adaptive", "rigid"):
             raise ValueError(f"observer kind: expected 'adaptive' or 'rigid', got {self.kind!r}")
@@ -108,6 +119,7 @@ class AdaptiveObserver:
         self._A_min = 2.0 * rb * math.cos(2.0 * math.pi * hi * self.h)
         self._A_max = 2.0 * rb * math.cos(2.0 * math.pi * lo * self.h)
         self._floor2 = noise_floor_rad_s**2
+        self.mu_bound = float(cfg.mu_bound if mu_bound is None else mu_bound)
         self.reset()
 
     def reset(self, omega_B_rad_s: np.ndarray | None = None) -> None:
@@ -155,7 +167,12 @@ class AdaptiveObserver:
         dA = W4 * self.g * eps / (self.P_g + self._floor2)
         dmu = W8 * v * eps / (v**2 + self.P_v + self._floor2)
         self.A = np.where(switching, self.A, np.clip(self.A + dA, self._A_min, self._A_max))
-        self.mu = np.where(switching, self.mu + dmu, self.mu)
+        # mu^ is identified at switching instants only (a thruster turned on or off: the input
+        # steps), seed 003 fig. 3b; under steady firing the regressor v is small and a thrust
+        # error of the rigid model would be learnt as "influence" and blow up.
+        edge = np.abs(u - self.u_prev) > _EDGE * np.maximum(np.abs(u), np.abs(self.u_prev))
+        self.mu = np.where(switching & edge,
+                           np.clip(self.mu + dmu, -self.mu_bound, self.mu_bound), self.mu)
         self.g_prev = self.g
         self.g = g_pred + np.where(switching, W6, W2) * eps
         self.w = w_pred + np.where(switching, W5, W1) * eps

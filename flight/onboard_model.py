@@ -57,8 +57,11 @@ class Prediction:
     tick's pulse that reaches into the interval does not make it "commanded": in such a tick a
     stuck-on thruster shows almost its whole effect, so the tick is evidence about "stuck on"
     and belongs to rho_off; ``burning`` (N,) bool: any thrust of the thruster expected inside
-    the interval, tails included (the Kalman leak test uses only intervals with none); ``dangle_thr_B_rad`` (3,): the thrusters' share of
-    the attitude increment over the interval (used by the Kalman filter, seed 002).
+    the interval, tails included (the Kalman leak test uses only intervals with none);
+    ``dw_thr_abs_rad_s``: sum of the thrusters' rate-change magnitudes ``sum_j |mu_j| eff_j``
+    (the scale of the detector's relative dead zone); ``dangle_thr_B_rad`` (3,): the
+    thrusters' share of the attitude increment over the interval (used by the Kalman filter,
+    seed 002).
     """
 
     omega_calc_B_rad_s: np.ndarray
@@ -67,6 +70,7 @@ class Prediction:
     active: np.ndarray
     dangle_thr_B_rad: np.ndarray
     burning: np.ndarray
+    dw_thr_abs_rad_s: float = 0.0
 
 
 class BurnTimeline:
@@ -211,4 +215,5 @@ class OnboardModel:
             active=np.asarray(tau_cmd_s, dtype=float) > 0.0,
             dangle_thr_B_rad=self.mu_B_rad_s2.T @ angle,
             burning=eff > 0.0,
+            dw_thr_abs_rad_s=float(np.linalg.norm(self.mu_B_rad_s2, axis=1) @ np.abs(eff)),
         )

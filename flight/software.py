@@ -160,7 +160,7 @@ class FlightSoftware:
         else:
             self._omega_pred = pred.omega_calc_B_rad_s
             self._det_out = self.detector.step(self._tick, w_hat - self._omega_pred, pred.active,
-                                               self.fdir.available)
+                                               self.fdir.available, pred.dw_thr_abs_rad_s)
         det = self._det_out.detection
         if self.kalman is not None and pred is not None:
             burn_dw = self.arrays.mu_B_rad_s2.T @ pred.burn_s

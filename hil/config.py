@@ -189,12 +189,19 @@ class ObserverCfg(_Model):
     )
     initial_freq_hz: PosFloat = 0.2
     initial_damping: NonNegFloat = 0.01
+    # |mu^| bound: the flex share at the gyro of a pulse's rate change (seed 003 eq. 8)
+    mu_bound: PosFloat = 5.0
 
 
 class DetectorCfg(_Model):
     """Integral residuals with forgetting (seed 000; seed 003 threshold 0.5)."""
 
     dead_zone_rad_s: NonNegFloat = 1e-4
+    # The dead zone grows with what was commanded: |dw| below dead_zone_rad_s plus this
+    # fraction of the sum of the commanded thrusters' rate changes (sum_j |mu_j| tau_E,j) is
+    # treated as zero, so thrust errors of the size the vehicle admits (DESIGN.md 10: +/-15 %)
+    # are not read as a failure of a whole thruster.
+    relative_dead_zone: float = Field(default=0.0, ge=0.0, lt=1.0)
     forgetting_on: Forgetting = 0.9
     forgetting_off: Forgetting = 0.9
     threshold_on: PosFloat = 3.0
@@ -381,6 +388,8 @@ class PlantOverridesCfg(_Model):
     thrust_scale_per_thruster: dict[str, PosFloat] = {}
     direction_error_deg: NonNegFloat = 0.0
     command_latency_ms: NonNegFloat = 0.0
+    # Replaces the vehicle's constant disturbance torque for this run (None: the vehicle's).
+    disturbance_torque_B_Nm: tuple[float, float, float] | None = None
     # Each step gets the exact thrust impulse (plant.core), so 10 ms loses nothing of the
     # profile's ms features; RK4 error at w*h ~ 1e-3 is negligible.
     step_s: PosFloat = 0.01
@@ -399,6 +408,21 @@ class ExpectationsCfg(_Model):
     max_rate_error_deg_s: PosFloat | None = None
     # Only judge the attitude/rate maxima after this time (e.g. after the initial slew).
     settle_after_s: NonNegFloat = 0.0
+    # A demonstration run that must raise a false alarm (S003-flex-rigid, seed 003 fig. 2).
+    false_alarm_expected: bool = False
+    # Orbit correction: the delta-v (body axes, m/s) the plant must have received by the end,
+    # each component within delta_v_tol_m_s.
+    delta_v_B_m_s: tuple[float, float, float] | None = None
+    delta_v_tol_m_s: PosFloat = 0.3
+    # Rate "within the dead zone apart from brief excursions" (seed 004): after
+    # settle_after_s, no stretch longer than max_excursion_s with |rate| > rate_band_deg_s.
+    rate_band_deg_s: PosFloat | None = None
+    max_excursion_s: PosFloat = 10.0
+    # Recovery: from recover_after_s seconds after the first correct detection to the end,
+    # attitude error and rate stay within these bounds (the response holds attitude again).
+    recover_after_s: NonNegFloat | None = None
+    recovered_attitude_deg: PosFloat | None = None
+    recovered_rate_deg_s: PosFloat | None = None
 
 
 class ScenarioCfg(_Model):

@@ -67,6 +67,20 @@ def match_detections(
     return out, false_alarms, missed
 
 
+def longest_excursion_s(samples: list[tuple[float, float]], band: float) -> float:
+    """Longest stretch (s) of consecutive samples ``(t, value)`` with ``value > band``."""
+    longest, start, prev_t = 0.0, None, None
+    for t, v in samples:
+        if v > band:
+            if start is None:
+                start = prev_t if prev_t is not None else t
+            longest = max(longest, t - start)
+        else:
+            start = None
+        prev_t = t
+    return round(longest, 3)
+
+
 def percentiles_ms(values_s: Iterable[float]) -> dict[str, float | None]:
     v = np.asarray(list(values_s), dtype=float)
     if v.size == 0:
@@ -99,6 +113,29 @@ def check_expectations(summary: dict[str, Any], expect: ExpectationsCfg | None) 
     if expect.no_false_alarm and summary["false_alarms"]:
         fa = [(d["thruster"], d["type"], d["t_s"]) for d in summary["false_alarms"]]
         fails.append(f"no false alarm: expected none, got {fa}")
+    if expect.false_alarm_expected and not summary["false_alarms"]:
+        fails.append("false alarm: expected one (demonstration run), got none")
+    if expect.delta_v_B_m_s is not None:
+        got = summary.get("delta_v_B_m_s")
+        if got is None or any(abs(g - w) > expect.delta_v_tol_m_s
+                              for g, w in zip(got, expect.delta_v_B_m_s, strict=True)):
+            fails.append(f"delta-v: expected {list(expect.delta_v_B_m_s)} m/s within "
+                         f"{expect.delta_v_tol_m_s}, got {got}")
+    if expect.rate_band_deg_s is not None:
+        got = summary.get("longest_rate_excursion_s")
+        if got is None or got > expect.max_excursion_s:
+            fails.append(f"rate within {expect.rate_band_deg_s} deg/s apart from excursions of "
+                         f"at most {expect.max_excursion_s} s: expected, got {got} s")
+    if expect.recover_after_s is not None:
+        rec = summary.get("recovery")
+        if rec is None:
+            fails.append("recovery: expected a correct detection to recover from, got none")
+        else:
+            for key, limit in (("max_attitude_error_deg", expect.recovered_attitude_deg),
+                               ("max_rate_error_deg_s", expect.recovered_rate_deg_s)):
+                if limit is not None and (rec[key] is None or rec[key] > limit):
+                    fails.append(f"recovery {key} from {rec['from_t_s']} s: expected <= "
+                                 f"{limit}, got {rec[key]}")
     for key, limit in (
         ("max_attitude_error_deg", expect.max_attitude_error_deg),
         ("max_rate_error_deg_s", expect.max_rate_error_deg_s),
@@ -158,6 +195,24 @@ def summarise(
         "safe_events": [e for r in plant_records + flight_records for e in r.get("events", [])
                         if "safe" in e or "lost" in e],
     }
+    last_dv = next((r["dv_B_m_s"] for r in reversed(plant_records) if "dv_B_m_s" in r), None)
+    summary["delta_v_B_m_s"] = None if last_dv is None else [round(float(x), 4) for x in last_dv]
+    if expect is not None and expect.rate_band_deg_s is not None:
+        summary["longest_rate_excursion_s"] = longest_excursion_s(
+            [(r["t_s"], r["rate_err_deg_s"]) for r in plant_records
+             if "rate_err_deg_s" in r and r["t_s"] >= settle], expect.rate_band_deg_s)
+    if expect is not None and expect.recover_after_s is not None:
+        first = next((d for d in matched if d["correct"]), None)
+        if first is not None:
+            t_from = first["t_s"] + expect.recover_after_s
+            after = [r for r in plant_records if "att_err_deg" in r and r["t_s"] >= t_from]
+            summary["recovery"] = {
+                "from_t_s": round(t_from, 3),
+                "max_attitude_error_deg": round(max(r["att_err_deg"] for r in after), 6)
+                if after else None,
+                "max_rate_error_deg_s": round(max(r["rate_err_deg_s"] for r in after), 6)
+                if after else None,
+            }
     if extra:
         summary.update(extra)
     fails = check_expectations(summary, expect)

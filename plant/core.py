@@ -195,7 +195,9 @@ class Plant:
             h_dot_B_Nm=None if cmg is None else np.array(cmg.h_dot_B_Nm),
         )
         dist = vehicle.disturbance
-        self._dist_const = np.array(dist.constant_torque_B_Nm, dtype=float)
+        const = self.overrides.disturbance_torque_B_Nm
+        self._dist_const = np.array(dist.constant_torque_B_Nm if const is None else const,
+                                    dtype=float)
         self._dist_std = float(dist.random_torque_std_Nm)
 
         self.t = 0.0
