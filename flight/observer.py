@@ -49,9 +49,10 @@ they leave residual spikes of ~1e-3 rad/s after long firings (seen on `generic`)
 by more than half its size: a thruster turned on or off), and kept within ``mu_bound``
 (config, default 5; a vehicle sets its physical bound, e.g. 0.5 where the flex part at the
 gyro of a pulse is a fraction of the rigid part): under steady firing the regressor
-v = u - A/2 u(n-1) is small and the normalised step would learn a thrust error of the rigid model (e.g. thrust 15 % below nominal, seed 003's
-flight test) as "influence", drive mu^ to non-physical values and make the next burst of
-pulses look like a failure (found on S003-flex).
+v = u - A/2 u(n-1) is small and the normalised step would learn a thrust error of the
+rigid model (e.g. thrust 15 % below nominal, seed 003's flight test) as "influence", drive
+mu^ to non-physical values and make the next burst of pulses look like a failure (found on
+S003-flex).
 
 ``kind = rigid`` keeps only ``w^`` (no flex state): ``w^ = w^- + W1 eps`` on quiet ticks,
 ``W5 eps`` on switching ticks. With W1 = W5 = 1 it returns the measurement itself, which is
