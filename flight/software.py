@@ -115,6 +115,10 @@ class FlightSoftware:
         self._free = np.zeros(3)
         self._phi_meas = np.zeros(3)
         self._tick = -1
+        # Orbit correction (seed 004 section 3): delta-v given so far, as the flight predicts it.
+        self.orbit_correction = fc.orbit_correction
+        self.dv_given_B_m_s = np.zeros(3)
+        self.burn_state = "none" if fc.orbit_correction is None else "waiting"
 
     # ------------------------------------------------------------------ pipeline
 
@@ -194,9 +198,36 @@ class FlightSoftware:
             self._on_ms = np.zeros(self.n, dtype=int)
             return
         d = self._demand
-        self._alloc: Allocation | None = self.allocator.allocate(
-            d.dw_down_B_rad_s, d.dw_up_B_rad_s, av)
+        oc = self.orbit_correction
+        if oc is not None and self.burn_state != "done" and self._tick * self.h >= oc.start_s:
+            self._alloc = self._burn_tick(oc, d, av)
+        else:
+            self._alloc: Allocation | None = self.allocator.allocate(
+                d.dw_down_B_rad_s, d.dw_up_B_rad_s, av)
         self._on_ms = np.asarray(self._alloc.on_ms, dtype=int)
+
+    def _burn_tick(self, oc, d: RateDemand, av: np.ndarray) -> Allocation:
+        """One tick of an orbit correction: the main burn with attitude held by off-times
+        (seed 004 eq. 3.4, roll from pairs eq. 3.3), then what is left of the lateral
+        components by the 6-channel LP; done when the predicted delta-v is within tolerance."""
+        rem = np.asarray(oc.delta_v_B_m_s, dtype=float) - self.dv_given_B_m_s
+        tol = oc.tolerance_m_s
+        if np.all(np.abs(rem) <= tol):
+            self.burn_state = "done"
+            return self.allocator.allocate(d.dw_down_B_rad_s, d.dw_up_B_rad_s, av)
+        idx = [self.vehicle.thruster_index(b) for b in oc.burn]
+        along = self.allocator.acc[idx].sum(axis=0)
+        main = float(rem @ along) / max(float(np.linalg.norm(along)), 1e-12)
+        if main > tol:
+            self.burn_state = "burning"
+            alloc = self.allocator.allocate_burn(d.dw_down_B_rad_s, d.dw_up_B_rad_s, idx, av,
+                                                 rem)
+        else:
+            self.burn_state = "trimming"
+            alloc = self.allocator.allocate(d.dw_down_B_rad_s, d.dw_up_B_rad_s, av,
+                                            rem - tol / 2, rem + tol / 2)
+        self.dv_given_B_m_s = self.dv_given_B_m_s + alloc.dv_pred_B_m_s
+        return alloc
 
     def stage_output(self) -> None:
         """Onboard-model prediction for the next sample with this tick's commands."""

@@ -229,6 +229,25 @@ class FdirCfg(_Model):
     on_degraded: Literal["close_manifold", "drop_thruster", "none"] = "drop_thruster"
 
 
+class OrbitCorrectionCfg(_Model):
+    """An orbit-correction burn (seed 004 section 3, eqs. 3.3-3.4), set per scenario.
+
+    From ``start_s`` the flight burns ``burn`` (4, 6 or 8 thrusters of the aft belt for +X,
+    of the front belt for -X) continuously, holds attitude by off-times, gives the lateral
+    components from the middle belt, and stops when its own prediction of the delta-v given
+    (no accelerometer: the sum of the allocator's predictions) is within ``tolerance_m_s`` of
+    ``delta_v_B_m_s`` (body axes; the craft holds the orbital attitude, so body ~ orbital).
+    ``scheme``: seed 004's name of the case (``cartesian``: X, Y, Z components;
+    ``polar``: the whole delta-v along X).
+    """
+
+    start_s: NonNegFloat = 0.0
+    delta_v_B_m_s: tuple[float, float, float]
+    burn: list[str] = Field(min_length=1)
+    scheme: Literal["cartesian", "polar"] = "cartesian"
+    tolerance_m_s: PosFloat = 0.02
+
+
 class FlightCfg(_Model):
     controller: ControllerCfg = ControllerCfg()
     allocator: AllocatorCfg = AllocatorCfg()
@@ -237,6 +256,7 @@ class FlightCfg(_Model):
     detector: DetectorCfg = DetectorCfg()
     kalman: KalmanCfg = KalmanCfg()
     fdir: FdirCfg = FdirCfg()
+    orbit_correction: OrbitCorrectionCfg | None = None
 
 
 class VehicleCfg(_Model):
@@ -289,6 +309,10 @@ class VehicleCfg(_Model):
             for n in (a, b):
                 if n not in seen:
                     raise _FieldError(f"flight.allocator.roll_pairs[{k}]", "a thruster name", n)
+        oc = self.flight.orbit_correction
+        for k, n in enumerate(oc.burn if oc else ()):
+            if n not in seen:
+                raise _FieldError(f"flight.orbit_correction.burn[{k}]", "a thruster name", n)
         return self
 
     def thruster_index(self, name: str) -> int:

@@ -47,3 +47,69 @@ def test_expectations() -> None:
     assert "within 4.6 s: expected" in s["expectation_failures"][0]
     s["detections"][0]["latency_s"] = 4.0
     assert check_expectations(s, exp) == []
+
+
+def _plant(ts, att, rate, dv=(0.0, 0.0, 0.0), faults=()):
+    recs = [{"t_s": t, "att_err_deg": a, "rate_err_deg_s": r, "dv_B_m_s": list(dv),
+             "faults_injected": []} for t, a, r in zip(ts, att, rate, strict=True)]
+    recs[0]["faults_injected"] = list(faults)
+    return recs
+
+
+def test_longest_excursion_counts_from_the_last_sample_inside() -> None:
+    from hil.summary import longest_excursion_s
+
+    s = [(0.0, 0.0), (0.2, 0.2), (0.4, 0.2), (0.6, 0.0), (0.8, 0.3), (1.0, 0.0)]
+    assert longest_excursion_s(s, 0.12) == 0.4   # out from after 0.0 until 0.4
+    assert longest_excursion_s([(0.0, 0.0)], 0.12) == 0.0
+
+
+def test_orbit_correction_expectations_delta_v_and_excursions() -> None:
+    ts = [0.2 * k for k in range(50)]
+    rate = [0.05] * 50
+    rate[10:20] = [0.2] * 10                      # 2 s out of the band
+    exp = ExpectationsCfg(delta_v_B_m_s=(7.0, -2.0, -1.0), rate_band_deg_s=0.12,
+                          max_excursion_s=1.0)
+    s = summarise(scenario="s", vehicle="orel", mode="lockstep",
+                  plant_records=_plant(ts, [0.1] * 50, rate, dv=(7.1, -2.5, -1.0)),
+                  flight_records=[], expect=exp)
+    assert s["delta_v_B_m_s"] == [7.1, -2.5, -1.0] and s["longest_rate_excursion_s"] == 2.0
+    assert len(s["expectation_failures"]) == 2     # y off by 0.5 m/s; a 2 s excursion
+    exp_ok = ExpectationsCfg(delta_v_B_m_s=(7.0, -2.4, -1.0), rate_band_deg_s=0.12,
+                             max_excursion_s=3.0)
+    s = summarise(scenario="s", vehicle="orel", mode="lockstep",
+                  plant_records=_plant(ts, [0.1] * 50, rate, dv=(7.1, -2.5, -1.0)),
+                  flight_records=[], expect=exp_ok)
+    assert s["expectations_met"], s["expectation_failures"]
+
+
+def test_recovery_is_judged_after_the_first_correct_detection() -> None:
+    ts = [0.2 * k for k in range(100)]
+    att = [0.3] * 100
+    att[60] = 1.5                                  # 12 s: inside the recovery window
+    fault = dict(FAULT, t_s=1.0)
+    flight = [{"t_s": 2.0, "detection": {"t_s": 2.0, "thruster": "X+", "type": "stuck_on"}}]
+    exp = ExpectationsCfg(recover_after_s=5.0, recovered_attitude_deg=0.8)
+    s = summarise(scenario="s", vehicle="generic", mode="lockstep",
+                  plant_records=_plant(ts, att, [0.01] * 100, faults=[fault]),
+                  flight_records=flight, expect=exp)
+    assert s["recovery"]["from_t_s"] == 7.0 and s["recovery"]["max_attitude_error_deg"] == 1.5
+    assert not s["expectations_met"]
+    exp_late = ExpectationsCfg(recover_after_s=11.0, recovered_attitude_deg=0.8)
+    s = summarise(scenario="s", vehicle="generic", mode="lockstep",
+                  plant_records=_plant(ts, att, [0.01] * 100, faults=[fault]),
+                  flight_records=flight, expect=exp_late)
+    assert s["expectations_met"], s["expectation_failures"]
+
+
+def test_a_demonstration_run_must_raise_its_false_alarm() -> None:
+    exp = ExpectationsCfg(no_false_alarm=False, false_alarm_expected=True)
+    quiet = summarise(scenario="s", vehicle="iss_rs", mode="lockstep",
+                      plant_records=_plant([0.0], [0.1], [0.0]), flight_records=[], expect=exp)
+    assert quiet["expectation_failures"] == [
+        "false alarm: expected one (demonstration run), got none"]
+    flight = [{"t_s": 4.2, "detection": {"t_s": 4.2, "thruster": "P", "type": "stuck_on"}}]
+    loud = summarise(scenario="s", vehicle="iss_rs", mode="lockstep",
+                     plant_records=_plant([0.0], [0.1], [0.0]), flight_records=flight,
+                     expect=exp)
+    assert loud["expectations_met"]
