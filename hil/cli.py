@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "flight.cli",
     "hil.run",
     "hil.panel",
+    "hil.runall",
     "hil.report",
 )
 
