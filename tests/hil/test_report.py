@@ -31,7 +31,8 @@ def _scenario(d: Path, fault: bool) -> Path:
     if fault:
         lines += ["faults:", f"  - {{kind: stuck_on, thruster: X+, t_s: {T_FAULT_S}}}",
                   "expect:", "  detections:",
-                  f"    - {{thruster: X+, type: stuck_on, within_s: {SEED_LATENCY_S}}}"]
+                  f"    - {{thruster: X+, type: stuck_on, within_s: {SEED_LATENCY_S}, "
+                  f"seed_latency_s: {SEED_LATENCY_S}}}"]
     path = d / "T-stuck.yaml"
     path.write_text("\n".join(lines) + "\n")
     return path
