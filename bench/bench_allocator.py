@@ -3,6 +3,7 @@
 Prints p50 / p99 / max per allocation for each solver and ``scipy.optimize.linprog`` (HiGHS) on
 the same LP problems in the same run, and the ratio. Vehicle: ``orel`` (30 thrusters) when its
 file exists, else a synthetic 30-thruster set. A figure, not a test: nothing here fails on speed.
+``hil bench`` reports the same comparison (``hil.bench.compare_allocator``, the same demands).
 
     .venv/bin/python bench/bench_allocator.py [--ticks 2000] [--vehicle orel]
 """
@@ -19,6 +20,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from flight.allocator import Allocator, linprog_solve  # noqa: E402
+from hil.bench import demand_stream  # noqa: E402
 from hil.config import VEHICLE_DIR, load_vehicle  # noqa: E402
 
 
@@ -27,22 +29,6 @@ def _synthetic():
     from test_allocator import synthetic_vehicle
 
     return synthetic_vehicle()
-
-
-def demand_stream(alloc: Allocator, ticks: int, seed: int = 1):
-    """Phase-plane-like bounds: a slowly varying rate error, dead-zone bands, some large steps."""
-    rng = np.random.default_rng(seed)
-    dz = np.radians(0.12)
-    e = np.zeros(3)
-    for k in range(ticks):
-        e = 0.95 * e + rng.normal(size=3) * dz * 0.4
-        if k % 97 == 0:
-            e += rng.normal(size=3) * dz * 8  # a slew start or disturbance
-        lo, hi = -dz - e, dz - e
-        out = np.abs(e) > dz
-        lo = np.where(out, -0.83 * dz - e, lo)
-        hi = np.where(out, 0.83 * dz - e, hi)
-        yield lo, hi
 
 
 def stats(t_s: list[float]) -> tuple[float, float, float]:
@@ -60,7 +46,7 @@ def main() -> int:
     else:
         print(f"{args.vehicle}.yaml not found: synthetic 30-thruster set")
         vehicle = _synthetic()
-    problems = list(demand_stream(Allocator(vehicle), args.ticks))
+    problems = list(demand_stream(args.ticks))
     ref = Allocator(vehicle, solver="simplex")
     times: dict[str, list[float]] = {}
     statuses: dict[str, int] = {}

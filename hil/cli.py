@@ -26,6 +26,7 @@ COMMAND_MODULES = (
     "hil.panel",
     "hil.runall",
     "hil.report",
+    "hil.bench",
 )
 
 

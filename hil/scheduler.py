@@ -147,3 +147,84 @@ def monotonic_sleep_until(target_ns: int) -> None:
             time.sleep((remaining - 1_000_000) / 1e9)
         elif remaining > 200_000:
             time.sleep(remaining / 2e9)
+
+
+# --------------------------------------------------------------------------- sensor alignment
+
+SEQ_MOD = 1 << 16  # the gyro sample counter on the bus (``Gyro.sample_seq``) is 16 bits
+
+
+def seq_at_or_after(seq: int, ref: int, mod: int = SEQ_MOD) -> bool:
+    """``seq`` is ``ref`` or a later sample on a wrapping counter (half the range ahead)."""
+    return (seq - ref) % mod < mod // 2
+
+
+@dataclass(frozen=True)
+class SampleGrid:
+    """A tick grid placed on a periodic sensor's arrivals, and the sample each tick waits for.
+
+    ``t0_ns``: release of tick 0 (absolute, the scheduler's clock); tick ``n`` is released at
+    ``t0_ns + n * tick`` as always. ``seq_first``: the sample that belongs to tick 0;
+    ``per_tick``: samples per tick, so tick ``n`` waits for ``seq_first + n * per_tick``; 0
+    when the sample rate is not a whole multiple of the tick rate (ticks then take the newest
+    sample and do not wait).
+    """
+
+    t0_ns: int
+    seq_first: int
+    per_tick: int
+
+    def expected_seq(self, tick: int) -> int | None:
+        if not self.per_tick:
+            return None
+        return (self.seq_first + tick * self.per_tick) % SEQ_MOD
+
+    def reached(self, seq: int | None, tick: int) -> bool:
+        """Has the sample of ``tick`` (or a later one) arrived, ``seq`` being the newest?"""
+        want = self.expected_seq(tick)
+        if want is None:
+            return seq is not None
+        return seq is not None and seq_at_or_after(seq, want)
+
+
+def align_to_samples(observed: list[tuple[int, int]], period_ns: int, tick_ns: int,
+                     offset_ns: int = 0) -> SampleGrid:
+    """Place the tick grid on the arrivals of the first samples.
+
+    ``observed``: (sequence number, arrival time ns) of the first samples received, in order.
+    Sample ``seq0 + j`` is expected at ``phase + j * period_ns``; ``phase`` is the earliest
+    of the observed ``arrival - j * period_ns``, so one sample delayed at start-up does not
+    shift the grid (a release too late would add its delay to every tick's latency; one too
+    early only makes the tick wait). Tick 0 is the first sample after the last observed one
+    that falls on a tick boundary (``seq % per_tick == 0``: the sender numbers samples from
+    its time zero, tick boundaries included; valid while the counter has not wrapped at
+    alignment). Its release is that sample's expected arrival plus ``offset_ns``.
+    """
+    if not observed:
+        raise ValueError("align_to_samples: observed: expected at least one sample, got none")
+    if period_ns <= 0 or tick_ns <= 0:
+        raise ValueError(f"align_to_samples: expected positive periods, got sample {period_ns} "
+                         f"ns, tick {tick_ns} ns")
+    seq0 = observed[0][0]
+    rel = [((seq - seq0) % SEQ_MOD, rx) for seq, rx in observed]
+    phase = min(rx - j * period_ns for j, rx in rel)
+    j0 = max(j for j, _ in rel) + 1
+    ratio = tick_ns / period_ns
+    m = int(round(ratio))
+    tied = m >= 1 and abs(ratio - m) < 1e-6
+    if tied:
+        while (seq0 + j0) % m:
+            j0 += 1
+    return SampleGrid(phase + j0 * period_ns + offset_ns, (seq0 + j0) % SEQ_MOD,
+                      m if tied else 0)
+
+
+def wait_for(done: Callable[[], bool], wait_s: Callable[[float], object],
+             now_ns: Callable[[], int], until_ns: int) -> bool:
+    """Bounded wait: call ``wait_s(timeout)`` (a blocking read of the bus) until ``done()`` or
+    ``until_ns`` on the ``now_ns`` clock. Returns ``done()``."""
+    now = now_ns()
+    while not done() and now < until_ns:
+        wait_s((until_ns - now) / 1e9)
+        now = now_ns()
+    return done()
