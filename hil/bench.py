@@ -1028,27 +1028,9 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ["_echo"]:  # the peer process of ping_pong
         echo(argv[1], int(argv[2]), rt="--rt" in argv)
         return 0
-    from hil.cli import _Parser
+    from hil.cli import main as cli_main
 
-    parser = _Parser(prog="hil")
-    parser.add_argument("--debug", action="store_true")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    register(sub)
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
-    try:
-        return int(args.func(args) or 0)
-    except HilError as exc:
-        if args.debug:
-            raise
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-
+    return cli_main(argv)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -67,7 +67,7 @@ from bus.receiver import Receiver
 from bus.transport import BusConfig, BusLogger, Port, open_bus
 from hil.config import Scenario, load_scenario
 from hil.errors import FaultCommandError, HilError
-from hil.recorder import JsonlWriter
+from hil.recorder import JsonlWriter, newly_active_faults
 from hil.scheduler import (
     RateGroup,
     TickRecord,
@@ -260,15 +260,10 @@ class PlantShell:
         tr = self.plant.truth
         n_err = error_quaternion(self.target, tr.q_BO)
         att = small_angle_vector(n_err) * DEG
-        injected = []
-        for e in self.plant.faults.entries:
-            if e.id not in self.reported_faults and e.t_on_s <= tr.t_s + 1e-9:
-                self.reported_faults.add(e.id)
-                injected.append({"t_s": round(e.t_on_s, 6), "thruster": e.spec.thruster,
-                                 "type": e.spec.kind, "fraction": e.spec.effective_fraction,
-                                 "clear_t_s": None if math.isinf(e.t_off_s) else e.t_off_s})
-                self.events.append(f"fault active: {e.spec.kind} {e.spec.thruster or ''} "
-                                   f"at {e.t_on_s:.2f} s")
+        injected = newly_active_faults(self.plant.faults.entries, self.reported_faults, tr.t_s)
+        for f in injected:
+            self.events.append(f"fault active: {f['type']} {f['thruster'] or ''} "
+                               f"at {f['t_s']:.2f} s")
         rec = {
             "tick": tick, "t_s": round(tr.t_s, 9),
             "series": {
@@ -306,15 +301,13 @@ class PlantShell:
                              manifold_enable_safe=self.all_open)
         cpu0 = time.process_time()
         t_wall0 = time.monotonic()
-        pending: list = []
         for n in range(n_ticks):
             if stop():
                 break
             t_n = n * self.h
-            samples = pending + self.plant.advance_to(t_n)
+            self.plant.advance_to(t_n)
             # The newest sample measured by t_n is this tick's (the tick's sensor read).
-            ready = [s for s in samples if s.t_avail_s <= t_n + 1e-9]
-            pending = [s for s in samples if s.t_avail_s > t_n + 1e-9]
+            ready = self.plant.gyro_samples_until(t_n)
             # GYRO and SYNC in one send: the flight wakes once per tick, not twice.
             self.port.send(*self.gyro_messages(ready[-1:]),
                            lock.begin_tick(n, self.port.now_s(), round(t_n * 1000)))
@@ -342,7 +335,7 @@ class PlantShell:
                 self.apply(res.command, self.plant.apply_time(t_n))
             elif res is not None and not self.safe:
                 self.apply(res.command, self.plant.apply_time(t_n))
-            pending += self.plant.advance_to(t_n + self.h)
+            self.plant.advance_to(t_n + self.h)
             extra = {"rt_factor": round((t_n + self.h) / max(time.monotonic() - t_wall0, 1e-9), 2),
                      "sync_to_cmd_s": latency, "deadline_misses": lock.deadline_misses}
             self.record(n, extra)

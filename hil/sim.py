@@ -24,6 +24,7 @@ import numpy as np
 
 from bus.codec import Gyro, ThrCmd, decode, encode
 from hil.config import Scenario, load_scenario
+from hil.recorder import newly_active_faults
 from hil.summary import summarise
 
 DEG = 180.0 / math.pi
@@ -67,13 +68,11 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
     flight_recs: list[dict[str, Any]] = []
     outputs, truths = [], []
     gyro: Gyro | None = None
-    pending: list = []
     wall0 = time.perf_counter()
     for n in range(n_ticks):
         t_n = n * h
-        samples = pending + plant.advance_to(t_n)
-        ready = [s for s in samples if s.t_avail_s <= t_n + 1e-9]
-        pending = [s for s in samples if s.t_avail_s > t_n + 1e-9]
+        plant.advance_to(t_n)
+        ready = plant.gyro_samples_until(t_n)
         if ready:
             s = ready[-1]
             rate = np.clip(np.asarray(s.rate_B_rad_s, dtype=float),
@@ -89,16 +88,10 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
         man = np.array([(cmd.manifold_enable >> m) & 1 for m in range(len(out.manifold_open))],
                        dtype=bool)
         plant.apply_command(n, plant.apply_time(t_n), on_ms, man)
-        pending += plant.advance_to(t_n + h)
+        plant.advance_to(t_n + h)
 
         tr = plant.truth
-        injected = []
-        for e in plant.faults.entries:
-            if e.id not in reported and e.t_on_s <= tr.t_s + 1e-9:
-                reported.add(e.id)
-                injected.append({"t_s": round(e.t_on_s, 6), "thruster": e.spec.thruster,
-                                 "type": e.spec.kind, "fraction": e.spec.effective_fraction,
-                                 "clear_t_s": None if math.isinf(e.t_off_s) else e.t_off_s})
+        injected = newly_active_faults(plant.faults.entries, reported, tr.t_s)
         plant_recs.append({
             "tick": n, "t_s": round(tr.t_s, 9), "faults_injected": injected,
             "att_err_deg": float(rotation_angle(error_quaternion(target, tr.q_BO)) * DEG),
