@@ -34,6 +34,7 @@ that fails to converge falls back to ``linprog``. The core reads no clock: timin
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import sys
 from collections.abc import Iterable, Sequence
@@ -49,6 +50,7 @@ OPTIMAL, ITERATION_LIMIT, INFEASIBLE = 0, 1, 2
 _PRIMAL_TOL = 1e-10  # on rows normalised to a largest coefficient of 1, tau in units of the tick
 _PIVOT_TOL = 1e-11
 _MAX_ITER = 80
+_REFACTOR_PIVOTS = 100
 
 
 # --------------------------------------------------------------------------- dense dual simplex
@@ -59,16 +61,20 @@ class SimplexState:
     """Basis of a solved :func:`dual_simplex` problem, reusable while ``A`` and ``c`` stay.
 
     Only bounds change from tick to tick, so the final basis stays dual feasible and is the
-    warm start of the next solve (usually zero to two pivots). ``T`` (m, n+m) the tableau
-    ``B^-1 [A, -I]``; ``d`` (n+m,) reduced costs; ``basis`` (m,) int; ``nonbasic``, ``at_upper``
-    (n+m,) bool.
+    warm start of the next solve (usually zero to two pivots). Plain Python lists (the problems
+    are a few rows by a few dozen columns, where list arithmetic is cheaper than numpy calls):
+    ``T`` m rows of the tableau ``B^-1 [A, -I]`` (n+m each); ``d`` (n+m) reduced costs;
+    ``basis`` (m) column indices; ``nonbasic``, ``at_upper`` (n+m) bools; ``pivots`` since the
+    tableau was last computed from the basis (it is recomputed after ``_REFACTOR_PIVOTS``, so
+    rounding does not build up over a long run).
     """
 
-    T: np.ndarray
-    d: np.ndarray
-    basis: np.ndarray
-    nonbasic: np.ndarray
-    at_upper: np.ndarray
+    T: list[list[float]]
+    d: list[float]
+    basis: list[int]
+    nonbasic: list[bool]
+    at_upper: list[bool]
+    pivots: int = 0
 
 
 def dual_simplex(
@@ -85,8 +91,14 @@ def dual_simplex(
     Bounded dual simplex on a dense tableau. Cold start: structural columns non-basic at 0 and
     the row activities ``s = A x`` basic; with ``c >= 0`` that basis is dual feasible, so no
     phase 1 is needed. Warm start: ``start`` from the previous solve with the same ``A`` and
-    ``c`` (ignored when a non-basic variable sits at a bound that is now infinite). Row bounds
-    and ``col_ub`` may be infinite. The problem should be scaled (coefficients of order 1).
+    ``c`` (ignored when a non-basic variable sits at a bound that is now infinite); it is
+    updated in place and returned (do not reuse it after ITERATION_LIMIT). Row bounds and
+    ``col_ub`` may be infinite. The problem should be scaled (coefficients of order 1).
+
+    Leaving row: the largest bound violation. Ratio test: the bound-flipping ("long-step")
+    one: boxed candidates whose breakpoint is passed while the leaving row is still infeasible
+    flip to their other bound instead of entering, so a demand that needs many thrusters at
+    their upper bound takes a few pivots, not one per thruster. Ties go to the lower column.
 
     Shapes: A (m, n), c (n,), row_lo and row_hi (m,), col_ub (n,).
     Returns ``(status, x (n,), iterations, state)``; status OPTIMAL, INFEASIBLE or
@@ -94,97 +106,151 @@ def dual_simplex(
     """
     m, n = A.shape
     nt = n + m
-    lb = np.concatenate((np.zeros(n), row_lo))
-    ub = np.concatenate((col_ub, row_hi))
+    lb = [0.0] * n + row_lo.tolist()
+    ub = col_ub.tolist() + row_hi.tolist()
+    inf = math.inf
+    z: list[float] | None = None
     if start is not None:
-        nb_val = np.where(start.at_upper, ub, lb)
-        if not np.all(np.isfinite(nb_val[start.nonbasic])):
-            start = None
-    if start is None:
-        T = np.empty((m, nt))
-        T[:, :n] = -A
-        T[:, n:] = np.eye(m)
-        d = np.concatenate((c, np.zeros(m)))
-        basis = np.arange(n, nt)
-        nonbasic = np.ones(nt, dtype=bool)
-        nonbasic[n:] = False
-        at_upper = np.zeros(nt, dtype=bool)
-        z = np.zeros(nt)
-        beta = np.zeros(m)
-    else:
-        T = start.T.copy()
-        d = start.d.copy()
-        basis = start.basis.copy()
-        nonbasic = start.nonbasic.copy()
-        at_upper = start.at_upper.copy()
-        z = np.where(nonbasic, nb_val, 0.0)
-        beta = -(T @ z)
-    cand = nonbasic & (ub > lb)  # fixed columns never enter
-    lbB = lb[basis]
-    ubB = ub[basis]
+        T, d, basis = start.T, start.d, start.basis
+        nonbasic, at_upper = start.nonbasic, start.at_upper
+        z = [(ub[j] if at_upper[j] else lb[j]) if nonbasic[j] else 0.0 for j in range(nt)]
+        if max(z) == inf or min(z) == -inf:
+            z = None
+        else:
+            nz = [(j, v) for j, v in enumerate(z) if v != 0.0]
+            beta = [-sum([row[j] * v for j, v in nz]) for row in T]
+            pivots = start.pivots
+    if z is None:
+        T = [[-v for v in row] + [1.0 if k == i else 0.0 for k in range(m)]
+             for i, row in enumerate(A.tolist())]
+        d = c.tolist() + [0.0] * m
+        basis = list(range(n, nt))
+        nonbasic = [True] * n + [False] * m
+        at_upper = [False] * nt
+        z = [0.0] * nt
+        beta = [0.0] * m
+        pivots = 0
+    lbB = [lb[j] for j in basis]
+    ubB = [ub[j] for j in basis]
 
     it = 0
     while True:
-        below = lbB - beta
-        above = beta - ubB
-        infeas = np.maximum(below, above)
-        r = int(infeas.argmax())
-        if infeas[r] <= _PRIMAL_TOL:
+        r, worst, increase = -1, _PRIMAL_TOL, False
+        for i in range(m):
+            v = lbB[i] - beta[i]
+            if v > worst:
+                r, worst, increase = i, v, True
+            v = beta[i] - ubB[i]
+            if v > worst:
+                r, worst, increase = i, v, False
+        if r < 0:
             break
         if it >= max_iter:
             return ITERATION_LIMIT, np.zeros(n), it, None
         it += 1
         alpha = T[r]
-        increase = below[r] > above[r]
         # Increasing the basic variable of row r: an entering variable at its lower bound
         # needs alpha < 0, one at its upper bound alpha > 0 (mirror for a decrease).
-        s = np.where(at_upper, alpha, -alpha) if increase else np.where(at_upper, -alpha, alpha)
-        idx = np.flatnonzero(cand & (s > _PIVOT_TOL))
-        if len(idx) == 0:
+        cands = []
+        for j in range(nt):
+            if nonbasic[j] and ub[j] > lb[j]:  # fixed columns never enter
+                a = alpha[j]
+                sj = a if at_upper[j] == increase else -a
+                if sj > _PIVOT_TOL:
+                    cands.append((abs(d[j]) / sj, j, sj))
+        if not cands:
             return INFEASIBLE, np.zeros(n), it, None
-        ratios = np.abs(d[idx] / alpha[idx])
-        q = int(idx[ratios.argmin()])
+        cands.sort()
+        slope = worst
+        flips = []
+        q = -1
+        for _, j, sj in cands:
+            g = sj * (ub[j] - lb[j])  # inf for an unbounded range
+            if g < slope:
+                slope -= g
+                flips.append(j)
+            else:
+                q = j
+                break
+        if q < 0:  # every candidate flipped and the row is still infeasible
+            return INFEASIBLE, np.zeros(n), it, None
+        for j in flips:
+            new = lb[j] if at_upper[j] else ub[j]
+            dz = new - z[j]
+            z[j] = new
+            at_upper[j] = not at_upper[j]
+            for i in range(m):
+                beta[i] -= T[i][j] * dz
         a_rq = alpha[q]
-        leave = int(basis[r])
+        leave = basis[r]
         bound = lbB[r] if increase else ubB[r]
         delta = (beta[r] - bound) / a_rq
-        col_q = T[:, q].copy()
-        beta -= col_q * delta
+        for i in range(m):
+            beta[i] -= T[i][q] * delta
         beta[r] = z[q] + delta
-        d -= (d[q] / a_rq) * alpha
+        f = d[q] / a_rq
+        if f != 0.0:
+            d[:] = [dj - f * aj for dj, aj in zip(d, alpha)]
         d[q] = 0.0
         # Pivot on (r, q).
-        T[r] /= a_rq
-        col_q[r] = 0.0
-        T -= col_q[:, None] * T[r]
+        prow = [v / a_rq for v in alpha]
+        T[r] = prow
+        for i in range(m):
+            if i != r:
+                f = T[i][q]
+                if f != 0.0:
+                    T[i] = [v - f * w for v, w in zip(T[i], prow)]
+                    T[i][q] = 0.0
+        prow[q] = 1.0
         z[leave] = bound
         at_upper[leave] = not increase
         nonbasic[leave] = True
-        cand[leave] = ub[leave] > lb[leave]
         nonbasic[q] = False
-        cand[q] = False
         at_upper[q] = False
+        z[q] = 0.0
         basis[r] = q
         lbB[r] = lb[q]
         ubB[r] = ub[q]
 
-    # Refine: recompute the basic values from the original data.
-    zz = np.where(nonbasic, z, 0.0)
-    K = np.hstack((A, -np.eye(m)))
-    try:
-        zB = np.linalg.solve(K[:, basis], -(K @ zz))
-    except np.linalg.LinAlgError:
-        return ITERATION_LIMIT, np.zeros(n), it, None
-    zz[basis] = zB
+    # The basic values from the tableau; checked against the original data, and recomputed from
+    # it (a solve with the basis matrix) only when the tableau's rounding shows.
+    zz = np.array(z)
+    zz[basis] = beta
     x = zz[:n]
-    tol = 1e-8
     act = A @ x
-    if (
-        np.any(x < -tol) or np.any(x > col_ub + tol)
-        or np.any(act < row_lo - tol) or np.any(act > row_hi + tol)
-    ):
-        return ITERATION_LIMIT, np.zeros(n), it, None
-    state = SimplexState(T=T, d=d, basis=basis, nonbasic=nonbasic, at_upper=at_upper)
+    tol = 1e-8
+    worst = max(
+        -x.min(), (x - col_ub).max(), (row_lo - act).max(), (act - row_hi).max()
+    )
+    pivots += it
+    if worst > tol or pivots > _REFACTOR_PIVOTS:
+        K = np.hstack((A, -np.eye(m)))
+        try:
+            zB = np.linalg.solve(K[:, basis], -(K @ np.array(z)))
+            if pivots > _REFACTOR_PIVOTS:  # fresh tableau and reduced costs from the basis
+                Tn = np.linalg.solve(K[:, basis], K)
+                cf = np.concatenate((c, np.zeros(m)))
+                dn = cf - cf[basis] @ Tn
+                dn[basis] = 0.0
+                T[:] = Tn.tolist()
+                d[:] = dn.tolist()
+                pivots = 0
+        except np.linalg.LinAlgError:
+            return ITERATION_LIMIT, np.zeros(n), it, None
+        zz[basis] = zB
+        x = zz[:n]
+        act = A @ x
+        if (
+            np.any(x < -tol) or np.any(x > col_ub + tol)
+            or np.any(act < row_lo - tol) or np.any(act > row_hi + tol)
+        ):
+            return ITERATION_LIMIT, np.zeros(n), it, None
+    if start is not None and start.T is T:
+        start.pivots = pivots
+        state = start
+    else:
+        state = SimplexState(T=T, d=d, basis=basis, nonbasic=nonbasic, at_upper=at_upper,
+                             pivots=pivots)
     return OPTIMAL, np.clip(x, 0.0, col_ub), it, state
 
 
@@ -375,6 +441,12 @@ class Allocator:
         self._A6 = self._M6 * self.h_s / self._row_scale6[:, None]
         self._warm: dict[int, _HighsWarm] = {}
         self._states: dict[tuple, SimplexState] = {}
+        self._sub: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # (A, c) of a column subset
+        self._all_cols = np.arange(self.n)
+        self._ub_tick = np.full(self.n, self.tau_max_s / self.h_s)  # read only
+        self._ub_tick.setflags(write=False)
+        self._all_on = np.ones(self.n, dtype=bool)
+        self._all_on.setflags(write=False)
         self.roll_pairs = [
             (vehicle.thruster_index(a), vehicle.thruster_index(b)) for a, b in acfg.roll_pairs
         ]
@@ -404,10 +476,13 @@ class Allocator:
             return st, x, it, "linprog"
         start = self._states.get(key) if key is not None else None
         st, x, it, state = dual_simplex(A, c, lo, hi, ub, start=start)
-        if key is not None and state is not None:
-            if len(self._states) > 64:
-                self._states.clear()
-            self._states[key] = state
+        if key is not None:
+            if state is not None:
+                if len(self._states) > 64:
+                    self._states.clear()
+                self._states[key] = state
+            elif st == ITERATION_LIMIT:  # the warm start was updated in place: forget it
+                self._states.pop(key, None)
         if st == ITERATION_LIMIT:
             st, x, it = linprog_solve(A, c, lo, hi, ub)
             return st, x, it, "linprog"
@@ -426,8 +501,14 @@ class Allocator:
                 return st, x[cols], it, "highs"
             st, x, it = linprog_solve(A[:, cols], self._c[cols], lo, hi, ub)
             return st, x, it, "linprog"
-        key = (rows, cols.tobytes(), bool(np.isfinite(ub).all()))
-        return self._solve_scaled(A[:, cols], self._c[cols], lo, hi, ub, key)
+        ck = (rows, cols.tobytes())
+        sub = self._sub.get(ck)
+        if sub is None:
+            if len(self._sub) > 64:
+                self._sub.clear()
+            sub = self._sub[ck] = (np.ascontiguousarray(A[:, cols]), self._c[cols].copy())
+        key = (ck, bool(ub[0] < np.inf) if len(ub) else True)  # ub: all tau_max or all inf
+        return self._solve_scaled(sub[0], sub[1], lo, hi, ub, key)
 
     # ------------------------------------------------------------------ LP
 
@@ -453,14 +534,16 @@ class Allocator:
             dvh = np.full(3, np.inf) if dv_up_B_m_s is None else np.asarray(dv_up_B_m_s, float)
             lo = np.concatenate((lo, dvl))
             hi = np.concatenate((hi, dvh))
-        if np.any(lo > hi):
+        if (lo > hi).any():
             raise ValueError(f"allocator: expected lower bounds <= upper bounds, got {lo} and {hi}")
-        av = np.ones(self.n, dtype=bool) if available is None else np.asarray(available, dtype=bool)
-        cols = np.flatnonzero(av)
+        if available is None or (av := np.asarray(available, dtype=bool)).all():
+            cols = self._all_cols
+        else:
+            cols = np.flatnonzero(av)
         rs = self._row_scale6[:rows]
         lo_s, hi_s = lo / rs, hi / rs
         tmax = self.tau_max_s / self.h_s
-        ub = np.full(len(cols), tmax)
+        ub = self._ub_tick[: len(cols)]
         N = self.n
         tau = np.zeros(N)
         st, x, it, used = self._solve_main(rows, lo_s, hi_s, ub, cols)
@@ -512,8 +595,7 @@ class Allocator:
 
     def _finish(self, lp_tau: np.ndarray, av: np.ndarray, feasible: bool, status: str,
                 scale: float, mode: str, solver: str) -> Allocation:
-        on = self.quantiser.step(lp_tau, av)
-        tau_e = self.pulses.effective_s(on)
+        on, tau_e = self.quantiser.step_eff(lp_tau, av)
         return Allocation(
             tau_eff_lp_s=lp_tau, on_ms=on, tau_eff_s=tau_e,
             dw_pred_B_rad_s=self.mu.T @ tau_e, dv_pred_B_m_s=self.acc.T @ tau_e,
@@ -530,7 +612,7 @@ class Allocator:
         dv_up_B_m_s: np.ndarray | None = None,
     ) -> Allocation:
         """One tick: LP (:meth:`solve_lp`), quantisation with carry, prediction."""
-        av = np.ones(self.n, dtype=bool) if available is None else np.asarray(available, dtype=bool)
+        av = self._all_on if available is None else np.asarray(available, dtype=bool)
         lp = self.solve_lp(dw_down_B_rad_s, dw_up_B_rad_s, av, dv_down_B_m_s, dv_up_B_m_s)
         mode = "attitude" if dv_down_B_m_s is None and dv_up_B_m_s is None else "translation"
         return self._finish(lp.tau_eff_s, av, lp.feasible, lp.status, lp.scale, mode, lp.solver)

@@ -28,6 +28,7 @@ thruster is not available (failed, disabled, closed manifold).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -85,13 +86,17 @@ class PulseSet:
         on = np.asarray(on_ms, dtype=float)
         return np.where(on > 0, on - self.lag_delta_ms, 0.0) / 1000.0
 
+    @cached_property
+    def _mid_ms(self) -> np.ndarray:
+        """(K-1,) midpoints between consecutive allowed effective times."""
+        return 0.5 * (self.eff_ms[:-1] + self.eff_ms[1:])
+
     def nearest(self, target_eff_ms: np.ndarray) -> np.ndarray:
-        """Index (N,) of the allowed command whose effective time is nearest (ties: shorter)."""
-        e = np.asarray(target_eff_ms, dtype=float)
-        hi = np.clip(np.searchsorted(self.eff_ms, e, side="left"), 1, len(self.eff_ms) - 1)
-        lo = hi - 1
-        take_hi = (self.eff_ms[hi] - e) < (e - self.eff_ms[lo])
-        return np.where(take_hi, hi, lo)
+        """Index (N,) of the allowed command whose effective time is nearest (ties: shorter).
+
+        The index is the number of midpoints strictly below the target.
+        """
+        return np.searchsorted(self._mid_ms, target_eff_ms, side="left")
 
 
 class Quantiser:
@@ -113,15 +118,19 @@ class Quantiser:
 
         ``available`` (N,) bool: an unavailable thruster is commanded 0 and its carry dropped.
         """
+        return self.step_eff(tau_eff_s, available)[0]
+
+    def step_eff(self, tau_eff_s: np.ndarray, available: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """As :meth:`step`; also returns the effective times (N,) s of the commands."""
         demand_ms = np.asarray(tau_eff_s, dtype=float) * 1000.0
         active = np.asarray(available, dtype=bool) & (demand_ms > 0.0)
-        target = demand_ms + (self.carry_ms if self.carry_enabled else 0.0)
-        target = np.where(active, target, 0.0)
+        target = demand_ms + self.carry_ms if self.carry_enabled else demand_ms
+        target *= active
         idx = self.pulses.nearest(target)
-        on = self.pulses.on_ms[idx]
+        eff = self.pulses.eff_ms[idx]
         if self.carry_enabled:
-            self.carry_ms = np.where(active, target - self.pulses.eff_ms[idx], 0.0)
-        return on.astype(np.int64)
+            self.carry_ms = (target - eff) * active
+        return self.pulses.on_ms[idx], eff / 1000.0
 
     def peek(self, tau_eff_s: np.ndarray, available: np.ndarray) -> np.ndarray:
         """As :meth:`step` without changing the carry."""

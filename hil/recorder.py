@@ -94,7 +94,13 @@ def read_jsonl(path: Path) -> Iterator[dict[str, Any]]:
 
 
 class RrdRecorder:
-    """Log records to a rerun ``.rrd`` file, flushing after every tick."""
+    """Log records to a rerun ``.rrd`` file.
+
+    :meth:`log_batch` sends what the processes wrote since the last call column by column (one
+    ``send_columns`` per entity and batch: a row-by-row ``log`` costs about 0.3 ms per entity
+    and tick, which in lockstep took more CPU than the flight software); :meth:`flush` after
+    each batch.
+    """
 
     def __init__(self, path: Path, recording_id: str, application_id: str = "thruster_hil") -> None:
         import rerun as rr  # imported here: only the recorder needs the viewer SDK
@@ -103,25 +109,48 @@ class RrdRecorder:
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         self.rec.save(str(path))
-        self._declared: set[str] = set()
+        self._declared: dict[str, tuple[str, ...]] = {}
 
     def spawn_viewer(self) -> None:
         self.rec.spawn(connect=True)
 
     def log(self, source: str, record: dict[str, Any]) -> None:
+        """One record (:meth:`log_batch` of one)."""
+        self.log_batch([(source, record)])
+
+    def log_batch(self, items: Iterable[tuple[str, dict[str, Any]]]) -> None:
+        """Records ``(source, record)`` in tick order: series as columns, events as text logs."""
+        import numpy as np
+
         rr, rec = self._rr, self.rec
-        rec.set_time("tick", sequence=int(record["tick"]))
-        rec.set_time("sim_time", duration=float(record["t_s"]))
-        for path, values in record.get("series", {}).items():
-            labels = list(values)
-            if path not in self._declared:
-                rec.log(path, rr.SeriesLines(names=labels), static=True)
-                self._declared.add(path)
-            rec.log(path, rr.Scalars([float(values[k]) for k in labels]))
-        for text in record.get("events", []):
+        cols: dict[tuple[str, tuple[str, ...]], tuple[list, list, list]] = {}
+        events: list[tuple[str, int, float, str]] = []
+        for source, record in items:
+            tick, t_s = int(record["tick"]), float(record["t_s"])
+            for path, values in record.get("series", {}).items():
+                labels = tuple(values)
+                ticks, times, rows = cols.setdefault((path, labels), ([], [], []))
+                ticks.append(tick)
+                times.append(t_s)
+                rows.append([float(values[k]) for k in labels])
+            for text in record.get("events", []):
+                events.append((source, tick, t_s, text))
+        for (path, labels), (ticks, times, rows) in cols.items():
+            if self._declared.get(path) != labels:
+                rec.log(path, rr.SeriesLines(names=list(labels)), static=True)
+                self._declared[path] = labels
+            rr.send_columns(
+                path,
+                indexes=[rr.TimeColumn("tick", sequence=ticks),
+                         rr.TimeColumn("sim_time", duration=times)],
+                columns=rr.Scalars.columns(scalars=np.asarray(rows, dtype=float)),
+                recording=rec,
+            )
+        for source, tick, t_s, text in events:
+            rec.set_time("tick", sequence=tick)
+            rec.set_time("sim_time", duration=t_s)
             warn = any(w in text for w in ("fault", "overrun", "safe", "lost"))
-            level = "WARN" if warn else "INFO"
-            rec.log(f"events/{source}", rr.TextLog(text, level=level))
+            rec.log(f"events/{source}", rr.TextLog(text, level="WARN" if warn else "INFO"))
 
     def flush(self) -> None:
         self.rec.flush(timeout_sec=5.0)
@@ -134,11 +163,10 @@ def build_rrd(run_dir: Path, out: Path | None = None, recording_id: str | None =
     if out.exists():
         out.unlink()
     rec = RrdRecorder(out, recording_id or run_dir.name)
-    for source, record in merge_by_tick(
+    rec.log_batch(merge_by_tick(
         ("plant", read_jsonl(run_dir / "plant.jsonl")),
         ("flight", read_jsonl(run_dir / "flight.jsonl")),
-    ):
-        rec.log(source, record)
+    ))
     rec.flush()
     return out
 

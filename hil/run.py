@@ -178,8 +178,8 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
             done = procs["plant"].poll() is not None
             new = [(s, r) for s, r in merge_by_tick(("plant", tails["plant"].read()),
                                                      ("flight", tails["flight"].read()))]
+            rrd.log_batch(new)
             for source, r in new:
-                rrd.log(source, r)
                 if not quiet:
                     for e in r.get("events", []):
                         print(f"  t={r['t_s']:7.1f} s  {source}: {e}", flush=True)
@@ -262,6 +262,8 @@ def _cmd_run(args) -> int:
             "--interface", args.interface, "--channel", args.channel]
     if args.kill_flight_at is not None:
         argv += ["--kill-flight-at", str(args.kill_flight_at)]
+    if args.rt_priority:
+        argv.append("--rt")
     rc = maybe_in_uml(args, argv)
     if rc is not None:
         return rc
@@ -290,6 +292,8 @@ def _cmd_up(args) -> int:
     out = Path(args.out or "runs/up").resolve()
     argv = ["up", "--scenario", str(scenario), "--mode", args.mode, "--out", str(out),
             "--interface", args.interface, "--channel", args.channel]
+    if args.rt_priority:
+        argv.append("--rt")
     rc = maybe_in_uml(args, argv)
     if rc is not None:
         return rc
@@ -300,6 +304,9 @@ def _cmd_up(args) -> int:
 
 
 def _bus_args(p) -> None:
+    p.add_argument("--rt", dest="rt_priority", action="store_true",
+                   help="ask SCHED_FIFO and locked memory for flight (50) and plant (40); the "
+                        "nodes say in their first events what they got")
     p.add_argument("--interface", default="socketcan",
                    help="python-can interface (default socketcan; udp_multicast, pcan, ...)")
     p.add_argument("--channel", default="vcan0", help="bus channel (default vcan0)")

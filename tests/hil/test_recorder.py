@@ -40,8 +40,11 @@ def test_build_rrd_contains_both_sources(tmp_path) -> None:
     out = build_rrd(tmp_path)
     rerun = Path(sys.executable).parent / "rerun"
     env = dict(os.environ, RERUN_ANALYTICS="0")
-    text = subprocess.run([str(rerun), "rrd", "print", "-v", str(out)], capture_output=True,
+    text = subprocess.run([str(rerun), "rrd", "print", "-vvv", str(out)], capture_output=True,
                           text=True, check=True, env=env).stdout
     assert "with 5 rows" in text and "/truth/omega_deg_s" in text
     assert "with 4 rows" in text and "/flight/omega_deg_s" in text
     assert "/events/plant" in text and "/events/flight" in text
+    # One row per tick holding the three labels, on both timelines (tick 3 at 0.6 s).
+    rows = [ln for ln in text.splitlines() if "[3.0, 0.0, -1.0]" in ln]
+    assert len(rows) == 2 and all("PT0.6S" in ln and "┆ 3 " in ln for ln in rows)
