@@ -20,6 +20,8 @@ measures both paths). Every other interface goes through python-can unchanged.
 
 from __future__ import annotations
 
+import collections
+
 import select
 import socket
 import time
@@ -95,6 +97,11 @@ def from_can_message(msg: can.Message) -> Frame:
     )
 
 
+def _echoes_own_frames(bus: can.BusABC) -> bool:
+    """True for python-can buses that deliver a node's own frames back to it (udp_multicast)."""
+    return type(bus).__name__ == "UdpMulticastBus"
+
+
 class BusLogger:
     """Every frame in and out as a candump ``-L`` log (``(time) channel id#data``).
 
@@ -134,6 +141,13 @@ class Port:
         self.tx_errors = 0
         self.monotonic_offset_s = time.monotonic() - time.time()
         self._raw = _RawSocketcan.wrap(bus)
+        # udp_multicast loops every datagram back to its sender: remember what we sent and drop
+        # the first matching frame received (loopback keeps the send order; with the alive
+        # counter and CRC, a peer's frame equal to one of ours in flight cannot occur).
+        self._echo: collections.deque[tuple[int, bytes]] | None = (
+            collections.deque(maxlen=4096) if _echoes_own_frames(bus) else None
+        )
+        self.echoes_dropped = 0
 
     @staticmethod
     def now_s() -> float:
@@ -190,6 +204,8 @@ class Port:
                 ok = False
             if ok and self.logger:
                 self.logger.log(m)
+            if ok and self._echo is not None:
+                self._echo.append((fr.arbitration_id, bytes(fr.data)))
         if ok:
             self.tx_frames += 1
         else:
@@ -221,11 +237,16 @@ class Port:
     def _drain_python_can(self, timeout_s: float,
                           got: list[tuple[Frame, can.Message | None]]) -> None:
         timeout: float | None = timeout_s
+        echo = self._echo
         while True:
             m = self.bus.recv(timeout)
             if m is None:
                 return
             timeout = 0.0
+            if echo and (m.arbitration_id, bytes(m.data)) in echo:
+                echo.remove((m.arbitration_id, bytes(m.data)))  # our own frame, looped back
+                self.echoes_dropped += 1
+                continue
             got.append((from_can_message(m), m))
 
     def counts(self) -> dict[str, int]:

@@ -200,8 +200,13 @@ def run_native(argv: list[str]) -> int:
 def exec_with_vcan(argv: list[str], *, channel: str = "vcan0", force: str | None = None,
                    mem: str = "1G", timeout_s: float | None = None,
                    verbose: bool = False) -> int:
-    """Run ``argv`` where ``channel`` is a real vcan interface; return its exit status."""
+    """Run ``argv`` where ``channel`` is a real vcan interface; return its exit status.
+
+    ``argv`` gets ``HIL_REQUIRE_VCAN=1`` in its environment on both paths: the test suite's
+    hook (``tests/conftest.py``) then fails a ``vcan`` test that would skip.
+    """
     _check_channel(channel)
+    os.environ["HIL_REQUIRE_VCAN"] = "1"
     path = choose_path(channel, force=force)
     if path == "native":
         ensure_vcan(channel, where="hil vcan exec")
