@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hil.config import VehicleArrays, VehicleCfg
+from hil.quaternion import cross3
 
 # Tolerance on "the command is the full tick" (continuous firing), s.
 _FULL_TICK_TOL_S = 1e-6
@@ -180,11 +181,11 @@ class OnboardModel:
         """Non-thruster part of eq. 9 over one tick (3,): gyroscopic, CMG, gravity gradient."""
         w = np.asarray(omega_B_rad_s, dtype=float)
         H = self.cmg_momentum(t_s)
-        dw = -self.J_inv @ np.cross(w, self.J @ w + H) * self.h
+        dw = -self.J_inv @ cross3(w, self.J @ w + H) * self.h
         dw -= self.J_inv @ (self.Hdot_B_Nm * self.h)
         if vertical_B is not None and self.w0_rad_s > 0.0:
             j = np.asarray(vertical_B, dtype=float)
-            M_gg = 3.0 * self.w0_rad_s**2 * np.cross(j, self.J @ j)
+            M_gg = 3.0 * self.w0_rad_s**2 * cross3(j, self.J @ j)
             dw += self.J_inv @ M_gg * self.h
         return dw
 
