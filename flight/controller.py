@@ -22,15 +22,24 @@ to the band (seed 004 section 3: ``dw_down <= dw <= dw_up``):
 Large errors (seed 004 section 2):
 
 * total rotation angle ``theta = 2 acos N0`` above ``large_angle_deg`` (15 deg): turn about the
-  Euler axis ``N_vec / |N_vec|`` at ``w_turn = min(w_max, sqrt(2 eps_min theta))`` (3.5 deg/s
-  cap): ``e_ref = -w_turn * axis`` in all channels;
+  Euler axis ``n = N_vec / |N_vec|`` at
+  ``w_turn = min(w_max, sqrt(2 eps_n theta), s (theta - nu_dz))`` (3.5 deg/s cap):
+  ``e_ref = -w_turn * n`` in all channels. ``eps_n = min_i eps_i / |n_i|`` is the acceleration
+  about the axis that no channel exceeds;
 * total below 15 deg but ``|nu_i|`` above ``curve_angle_deg`` (6.1 deg): channel i follows the
-  constant-acceleration switching curve ``w^2 = 2 eps_i |nu|`` (eq. 2.2):
-  ``e_ref = -sign(nu) sqrt(2 eps_i |nu|)``.
+  constant-acceleration switching curve ``w^2 = 2 eps_i |nu|`` (eq. 2.2), capped by the same
+  ramp as below 6.1 deg: ``e_ref = -sign(nu) min(sqrt(2 eps_i |nu|), s (|nu| - nu_dz), w_max)``.
+
+So ``e_ref`` is continuous across 6.1 deg and, for an error about one body axis, across 15 deg:
+where the ramp is still below the curve at 6.1 deg (a vehicle with a small dead band for its
+authority, e.g. ``iss_rs``), the state follows the ramp until it meets the curve, instead of a
+jump of the commanded rate of several dead bands; and the turn about a body axis uses that
+channel's acceleration, as the curve does (the weakest channel would make the craft speed up as
+the error falls through 15 deg).
 
 ``eps_i`` is :data:`CURVE_ACCEL_FRACTION` of channel i's weaker-sign authority (sum of the
 thrusters' angular accelerations of one sign on that axis), so the curve can be followed with
-margin; the Euler turn uses the weakest channel.
+margin.
 
 Seed 002 law (``law: s_law``, the kalman_cube vehicle): ``s_i = phi_i + k w_i`` with a dead zone
 ``|s| <= s_dz``; beyond it the channel's thrusters fire for the whole tick: ``dw_up = -a_i``
@@ -151,6 +160,13 @@ class Controller:
         curve = math.sqrt(2.0 * eps_rad_s2 * a)
         return -math.copysign(min(ramp, curve, self.w_max), nu_rad)
 
+    def axis_accel(self, axis_B: np.ndarray) -> float:
+        """``eps_n = min_i eps_i / |n_i|``: the angular acceleration about unit axis ``n`` (3,)
+        that keeps every channel within its curve acceleration, rad/s^2."""
+        n = np.abs(np.asarray(axis_B, dtype=float))
+        used = n > 1e-12
+        return float((self.eps_B_rad_s2[used] / n[used]).min())
+
     def _bounds(self, e: np.ndarray, e_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple]:
         dev = e - e_ref
         out_above = dev > self.dw_dz
@@ -200,8 +216,8 @@ class Controller:
         if theta > self.large_rad:
             ax = nu if axis_B is None else np.asarray(axis_B, dtype=float)
             ax = ax / np.linalg.norm(ax)
-            eps_min = float(self.eps_B_rad_s2.min())
-            w_turn = min(self.w_max, math.sqrt(2.0 * eps_min * theta))
+            w_turn = min(self.w_max, math.sqrt(2.0 * self.axis_accel(ax) * theta),
+                         self.slope_1_s * max(theta - self.nu_dz, 0.0))
             e_ref = -w_turn * ax
             mode = "euler_turn"
         else:
@@ -209,13 +225,8 @@ class Controller:
             on_curve = False
             for i in range(3):
                 a = abs(nu[i])
-                if a > self.curve_rad:
-                    on_curve = True
-                    e_ref[i] = -math.copysign(
-                        min(math.sqrt(2.0 * self.eps_B_rad_s2[i] * a), self.w_max), nu[i]
-                    )
-                else:
-                    e_ref[i] = self.centre_line(nu[i], self.eps_B_rad_s2[i])
+                on_curve |= a > self.curve_rad
+                e_ref[i] = self.centre_line(nu[i], self.eps_B_rad_s2[i])
             mode = "curve" if on_curve else "phase_plane"
         lo, hi, region = self._bounds(e, e_ref)
         return RateDemand(

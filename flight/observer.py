@@ -41,6 +41,14 @@ f h < 0.5 (aliasing). In the synthetic test (tone amplitude 2.5e-3 .. 1e-2 rad/s
 gyro noise 1e-5 rad/s, pulses every 6 s, initial guess f0 = 0.2 Hz) A^ converges for a true tone
 from 0.1 to 0.8 Hz: frequency within 3 % (typically 1 %), rigid-rate error >= 20 times (typically
 40-100 times) below the tone's amplitude. W4 up to 0.05 keeps the frequency jitter under 2 %.
+These figures hold when a pulse's modal impulse enters just before the sample, as eq. 6 assumes.
+The flight fires at the start of the tick (30 ms on-lag, then the pulse), so the mode's response
+reaches the next sample with a phase ``omega (h - t_pulse)`` eq. 6 cannot represent: on a signal
+built from the continuous modal equation with that timing
+(``tests/flight/test_observer_influence.py``), mu^ reads 1 % high at 0.16 Hz (iss_rs) and the
+rigid-rate error is 10 times below the tone; 3.5 % and 5 times at 0.3 Hz; 19 % and 1.1 times at
+0.8 Hz. Known limit: the input term would need the pulse timing the onboard model knows
+(``v = r(h - t) u(n) + (r(2h - t) - A r(h - t)) u(n-1)`` with ``r`` the mode's rate response).
 The schema's default gains (0.5, 0.5, 0.05, 0.05, 0.01, 0.01, 0.1, 0.1) are slower (radius 0.92
 at 0.2 Hz, 0.98 at 0.1 Hz) and W5 = 0.01 barely corrects on switching ticks: on a rigid vehicle
 they leave residual spikes of ~1e-3 rad/s after long firings (seen on `generic`).
