@@ -428,7 +428,8 @@ CATALOG = Catalog(
             (
                 _sig("request_id", 12, 8),
                 _sig("action", 20, 2, minimum=1, maximum=2, choices=_enum_choices(FaultAction)),
-                _sig("kind", 22, 4, minimum=1, maximum=11, choices=_enum_choices(FaultKind)),
+                _sig("kind", 22, 4, maximum=11, choices=_enum_choices(FaultKind),
+                     comment="none (0) with a clear; the plant rejects an inject of none"),
                 _sig(
                     "thruster",
                     26,

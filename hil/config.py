@@ -450,7 +450,49 @@ class ExpectationsCfg(_Model):
     recovered_rate_deg_s: PosFloat | None = None
 
 
+class SafetyCfg(_Model):
+    """When each side gives up on the other and goes to its safe state (DESIGN.md section 4).
+
+    ``thr_cmd_lost_ticks``: the plant closes every thruster valve and manifold when no
+    THR_CMD came for this many ticks (lockstep: deadline misses in a row; real time: ticks of
+    the plant's clock since the last command received). ``heartbeat_lost_s``: real time only,
+    the plant does the same when the flight's heartbeat (sent every
+    ``bus.catalog.HEARTBEAT_PERIOD_S``) has been silent this long; it must exceed that
+    period. ``gyro_lost_ticks``: the flight enters its safe mode (no firing, FDIR_STATUS safe
+    flag, heartbeat state SAFE) after this many ticks without a valid gyro sample (none
+    arrived, or every one was rejected by the receiver), and leaves it on the next valid one.
+    Entering and leaving are events in the records and on the terminal. ``python -m hil.nodes``
+    flags (``--lost-after``, ``--heartbeat-lost-s``, ``--gyro-lost-after``) override these.
+    """
+
+    thr_cmd_lost_ticks: int = Field(default=3, ge=1, strict=True)  # strict: `true` is no count
+    heartbeat_lost_s: PosFloat = 1.5
+    gyro_lost_ticks: int = Field(default=3, ge=1, strict=True)
+
+    @model_validator(mode="after")
+    def _above_heartbeat_period(self) -> SafetyCfg:
+        from bus.catalog import HEARTBEAT_PERIOD_S  # here: bus imports this package
+
+        if self.heartbeat_lost_s <= HEARTBEAT_PERIOD_S:
+            raise _FieldError("heartbeat_lost_s",
+                              f"> the heartbeat period {HEARTBEAT_PERIOD_S:g} s",
+                              self.heartbeat_lost_s)
+        return self
+
+
 class ScenarioCfg(_Model):
+    """A scenario file (``configs/scenarios/*.yaml``; the README shows one in full).
+
+    ``name``, ``description``, ``vehicle`` (a name in ``configs/vehicles`` or a path),
+    ``duration_s``, ``seed`` (every random source derives from it), ``initial`` (attitude and
+    rate relative to the orbit frame), ``target`` (attitude), ``plant`` (truth deviations,
+    ``PlantOverridesCfg``), ``flight`` (partial override of the vehicle's ``flight:``),
+    ``faults`` (``FaultSpec`` list), ``expect`` (optional verdict, ``ExpectationsCfg``) and
+    ``safety`` (optional, ``SafetyCfg``)::
+
+        safety: {thr_cmd_lost_ticks: 3, heartbeat_lost_s: 1.5, gyro_lost_ticks: 3}
+    """
+
     name: str
     description: str = ""
     vehicle: str
@@ -463,6 +505,7 @@ class ScenarioCfg(_Model):
     flight: dict[str, Any] = {}
     faults: list[FaultSpec] = []
     expect: ExpectationsCfg | None = None
+    safety: SafetyCfg = SafetyCfg()
 
 
 # --------------------------------------------------------------------------- loading

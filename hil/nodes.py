@@ -21,10 +21,20 @@ Scheduler policy (without ``--rt-priority``): the plant SCHED_BATCH, the flight 
 (``_set_policy``), so on one CPU the plant does not interrupt a flight tick; the policy each
 node got is in its first record (``sched``).
 
-Safe states (DESIGN.md section 4): the plant closes every valve (and manifold) when THR_CMD is
-missing for ``--lost-after`` ticks or the flight heartbeat is lost; the flight enters safe mode
-(no firing) when no valid gyro sample arrived for ``--gyro-lost-after`` ticks. Both are events
-in the records and on the terminal.
+Safe states (DESIGN.md section 4), counts from the scenario's ``safety:`` block
+(``hil.config.SafetyCfg``; ``--lost-after``, ``--heartbeat-lost-s`` and ``--gyro-lost-after``
+override them): the plant closes every valve (and manifold) when THR_CMD is missing for
+``thr_cmd_lost_ticks`` ticks or, in real time, the flight heartbeat is silent for
+``heartbeat_lost_s`` (``FlightLinkWatch``); the flight enters safe mode (no firing, FDIR_STATUS
+safe flag, heartbeat state SAFE) when no valid gyro sample arrived for ``gyro_lost_ticks`` ticks
+(``GyroLossWatch``). Both are events in the records and on the terminal. In lockstep the flight
+ticks on SYNC, so a dead plant stops its ticks instead (nothing is fired without a SYNC).
+
+Each node's first record carries ``config`` (scenario, vehicle and its file, thruster names,
+mode, bus, the safe-state settings it uses): ``hil fault`` learns the vehicle of a running
+``hil up`` from it, and ``hil.summary`` puts the settings in ``summary.json``. With
+``--rt-priority`` (``hil run --rt``, ``hil up --rt``) the first record also has an event that
+says what was granted or refused.
 """
 
 from __future__ import annotations
@@ -42,6 +52,7 @@ import numpy as np
 
 from bus.catalog import (
     CATALOG,
+    HEARTBEAT_PERIOD_S,
     AckReason,
     AckStatus,
     Catalog,
@@ -65,7 +76,7 @@ from bus.protocol import (
 )
 from bus.receiver import Receiver
 from bus.transport import BusConfig, BusLogger, Port, open_bus
-from hil.config import Scenario, load_scenario
+from hil.config import SafetyCfg, Scenario, load_scenario, resolve_vehicle_path
 from hil.errors import FaultCommandError, HilError
 from hil.recorder import JsonlWriter, newly_active_faults
 from hil.scheduler import (
@@ -81,6 +92,7 @@ XYZ = ("x", "y", "z")
 DEG = 180.0 / math.pi
 REALTIME_MAX_WAIT_S = 0.02  # the real-time plant wakes at least this often (see run_realtime)
 REALTIME_PRE_WAKE_S = 0.005  # ... and this long before each gyro sample
+REPEAT_WINDOW_S = 10.0  # an identical FAULT_CMD this soon is the panel's resend (not applied)
 
 
 def _r6(x: float | None) -> float | None:
@@ -134,6 +146,103 @@ def _say(name: str, text: str) -> None:
     print(f"[{name}] {text}", flush=True)
 
 
+# ============================================================================ safe states
+
+
+class GyroLossWatch:
+    """Flight side of the safe states (sans-IO): safe mode after ``lost_ticks`` ticks in a row
+    without a valid gyro sample, left at the next valid one.
+
+    Call ``tick(fresh)`` once per flight tick (``fresh``: a sample that passed the receiver's
+    checks arrived since the last tick); it returns ``"lost"`` on entering safe mode,
+    ``"back"`` on leaving it, otherwise None.
+    """
+
+    def __init__(self, lost_ticks: int) -> None:
+        if lost_ticks < 1:
+            raise ValueError(f"GyroLossWatch: lost_ticks: expected >= 1, got {lost_ticks}")
+        self.lost_ticks = lost_ticks
+        self.ticks_without = 0
+        self.safe = False
+
+    def tick(self, fresh: bool) -> str | None:
+        self.ticks_without = 0 if fresh else self.ticks_without + 1
+        if not self.safe and self.ticks_without >= self.lost_ticks:
+            self.safe = True
+            return "lost"
+        if self.safe and fresh:
+            self.safe = False
+            return "back"
+        return None
+
+
+class FlightLinkWatch:
+    """Real-time plant side of the safe states (sans-IO; times are seconds on the plant's clock).
+
+    The flight is lost when its heartbeat has been silent for ``heartbeat_lost_s`` (counted
+    from ``start_s`` until a first beat), or, once a THR_CMD has come, when none came for
+    ``thr_cmd_lost_ticks`` ticks of ``tick_s``. ``poll(now_s)`` returns the reasons that newly
+    hold (each once per loss); ``on_message`` returns the events of the link coming back.
+    """
+
+    def __init__(self, tick_s: float, thr_cmd_lost_ticks: int, heartbeat_lost_s: float,
+                 start_s: float = 0.0) -> None:
+        self.thr_cmd_lost_ticks = thr_cmd_lost_ticks
+        self.cmd_limit_s = thr_cmd_lost_ticks * tick_s
+        # The monitor's timeout is period x missed_limit: here the configured silence.
+        self.mon = HeartbeatMonitor(NodeId.FLIGHT, start_s, period_s=heartbeat_lost_s,
+                                    missed_limit=1)
+        self.last_cmd_s: float | None = None
+        self.cmd_lost = False
+
+    def on_message(self, msg, t_s: float) -> list[str]:
+        out = [f"flight heartbeat back at {t_s:.2f} s" for ev in self.mon.on_message(msg, t_s)
+               if isinstance(ev, PeerBack)]
+        if isinstance(msg, ThrCmd):
+            self.last_cmd_s, self.cmd_lost = t_s, False
+        return out
+
+    def poll(self, now_s: float) -> list[str]:
+        out = [f"flight heartbeat lost ({ev.silent_s:.2f} s silent)"
+               for ev in self.mon.poll(now_s) if isinstance(ev, PeerLost)]
+        if self.last_cmd_s is not None and not self.cmd_lost and \
+                now_s - self.last_cmd_s > self.cmd_limit_s:
+            self.cmd_lost = True
+            out.append(f"no THR_CMD for {self.thr_cmd_lost_ticks} ticks")
+        return out
+
+    @property
+    def alive(self) -> bool:
+        return self.mon.alive
+
+
+def safety_settings(sc: Scenario, args) -> SafetyCfg:
+    """The scenario's ``safety`` block with this node's command-line overrides applied."""
+    over = {k: v for k, v in (("thr_cmd_lost_ticks", getattr(args, "lost_after", None)),
+                              ("heartbeat_lost_s", getattr(args, "heartbeat_lost_s", None)),
+                              ("gyro_lost_ticks", getattr(args, "gyro_lost_after", None)))
+            if v is not None}
+    return sc.cfg.safety.model_copy(update=over) if over else sc.cfg.safety
+
+
+def node_config(sc: Scenario, args, safety: dict) -> dict:
+    """The ``config`` field of a node's first record (see the module doc)."""
+    vfile = resolve_vehicle_path(sc.cfg.vehicle, relative_to=sc.path.parent)
+    return {"scenario": sc.cfg.name, "vehicle": sc.vehicle.name,
+            "vehicle_file": str(vfile.resolve()),
+            "thrusters": [t.name for t in sc.vehicle.thrusters], "mode": args.mode,
+            "bus": f"{args.interface} {args.channel}", "safety": safety}
+
+
+def _first_record(sc: Scenario, args, safety: dict) -> dict:
+    """Fields only the first record of a node carries (``config``, ``sched``, --rt events)."""
+    first: dict = {"config": node_config(sc, args, safety)}
+    if getattr(args, "sched_note", None) is not None:
+        first["sched"] = args.sched_note
+    first["events"] = [args.rt_event] if getattr(args, "rt_event", None) else []
+    return first
+
+
 # ============================================================================ plant
 
 
@@ -174,13 +283,27 @@ class PlantShell:
         self.safe = False
         self.target = sc.cfg.target.quaternion()
         self.last_cmd_tick_s = 0.0
-        self.sched: str | None = getattr(args, "sched_note", None)  # into the first record
+        self.safety = safety_settings(sc, args)
+        self.cleared: list[dict] = []  # faults the panel ended since the last record
+        self.last_fault: tuple[FaultCmd, float, FaultAck] | None = None  # for repeats
+        self.first = _first_record(sc, args, {
+            "thr_cmd_lost_ticks": self.safety.thr_cmd_lost_ticks,
+            "heartbeat_lost_s": self.safety.heartbeat_lost_s})
+        self.events.extend(self.first.pop("events"))
 
     # -- faults from the panel ------------------------------------------------------------
 
     def on_fault_cmd(self, m: FaultCmd) -> None:
         from hil.config import FaultSpec
 
+        now = time.monotonic()
+        last = self.last_fault
+        if last is not None and last[0] == m and now - last[1] < REPEAT_WINDOW_S:
+            # The panel sent it again (no ACK seen in time, see hil.panel.send_and_wait).
+            self.port.send(last[2])
+            self.events.append(f"FAULT_CMD request {m.request_id} repeated: acknowledged "
+                               f"again, not applied again")
+            return
         reason, status = AckReason.NONE, AckStatus.ACCEPTED
         try:
             if m.action == FaultAction.CLEAR:
@@ -190,6 +313,11 @@ class PlantShell:
                     status, reason = AckStatus.REJECTED, AckReason.NOT_ACTIVE
                 else:
                     self.events.append(f"fault cleared: {thr or 'all'} (request {m.request_id})")
+                    # Matched by hil.summary with faults_injected (thruster, type, start).
+                    self.cleared.extend(
+                        {"thruster": e.spec.thruster, "type": e.spec.kind,
+                         "t_on_s": round(e.t_on_s, 6), "t_s": round(e.t_off_s, 6)}
+                        for e in changed)
             else:
                 kind = _KIND_FROM_BUS.get(m.kind)
                 if kind is None:
@@ -212,7 +340,9 @@ class PlantShell:
         except (FaultCommandError, ValueError) as exc:
             status, reason = AckStatus.REJECTED, AckReason.BAD_FRACTION
             self.events.append(f"fault command rejected: {exc}")
-        self.port.send(FaultAck(m.request_id, status, reason, m.kind))
+        ack = FaultAck(m.request_id, status, reason, m.kind)
+        self.last_fault = (m, now, ack)
+        self.port.send(ack)
 
     # -- gyro and commands ------------------------------------------------------------------
 
@@ -268,6 +398,7 @@ class PlantShell:
             "tick": tick, "t_s": round(tr.t_s, 9),
             "series": {
                 "truth/omega_deg_s": _xyz(tr.omega_BO_B_rad_s, DEG),
+                "truth/omega_BI_deg_s": _xyz(tr.omega_B_rad_s, DEG),  # as flight/omega_meas
                 "truth/attitude_error_deg": _xyz(att),
                 "truth/thrust_n": _named(self.names, tr.thrust_n),
                 "truth/flex_gyro_deg_s": _xyz(tr.flex_rate_gyro_B_rad_s, DEG),
@@ -281,13 +412,15 @@ class PlantShell:
             "safe": self.safe,
             "bus": self.port.counts(),
         }
+        if self.cleared:
+            rec["faults_cleared"], self.cleared = self.cleared, []
         if extra:
             extra = dict(extra)
             rec["series"].update(extra.pop("series", {}))
             rec.update(extra)
-        if self.sched is not None:
-            rec["sched"] = self.sched
-            self.sched = None
+        if self.first:
+            rec.update(self.first)
+            self.first = {}
         self.rec.write(rec)
         self.events = []
 
@@ -296,8 +429,9 @@ class PlantShell:
     def run_lockstep(self, stop: _Stop) -> int:
         a = self.args
         n_ticks = int(round(self.sc.cfg.duration_s / self.h))
+        lost_after = self.safety.thr_cmd_lost_ticks
         lock = PlantLockstep(self.n_thr, reply_timeout_s=a.reply_timeout,
-                             lost_after_misses=a.lost_after, tick_s=self.h,
+                             lost_after_misses=lost_after, tick_s=self.h,
                              manifold_enable_safe=self.all_open)
         cpu0 = time.process_time()
         t_wall0 = time.monotonic()
@@ -324,7 +458,7 @@ class PlantShell:
                 for ev in lock.poll(self.port.now_s()):
                     if isinstance(ev, CommandLost):
                         self.go_safe(t_n, f"no THR_CMD for {ev.consecutive} ticks")
-                    elif isinstance(ev, DeadlineMissed) and ev.consecutive <= a.lost_after:
+                    elif isinstance(ev, DeadlineMissed) and ev.consecutive <= lost_after:
                         self.events.append(f"deadline missed: tick {ev.tick} "
                                            f"({ev.consecutive} in a row)")
             res = lock.result
@@ -358,17 +492,16 @@ class PlantShell:
         time, command receive time and apply time (plant clock, seconds since its start), and
         ``s2a_s`` the sensor-to-actuator latency (apply time minus sample time).
         """
-        a = self.args
         duration = self.sc.cfg.duration_s
         cpu0 = time.process_time()
         t0 = time.monotonic()
         hb = HeartbeatSender(NodeId.PLANT, 0.0)
-        mon = HeartbeatMonitor(NodeId.FLIGHT, 0.0, missed_limit=a.heartbeat_misses)
+        watch = FlightLinkWatch(self.h, self.safety.thr_cmd_lost_ticks,
+                                self.safety.heartbeat_lost_s)
         period, gyro_latency = self.plant.gyro.period_s, self.plant.gyro.latency_s
         cmd_latency = self.sc.cfg.plant.command_latency_ms / 1e3
         next_record = self.h
         tick = 0
-        last_cmd_wall = None
         s2a: list[float] = []
         chain: list[dict] = []
         while not stop():
@@ -380,13 +513,8 @@ class PlantShell:
             ready = self.plant.gyro_samples_until(now)
             if ready:
                 self.port.send(*self.gyro_messages(ready, time.monotonic() - t0))
-            for ev in mon.poll(now):
-                if isinstance(ev, PeerLost):
-                    self.go_safe(self.plant.t, "flight heartbeat lost")
-                elif isinstance(ev, PeerBack):
-                    self.events.append("flight heartbeat back")
-            if last_cmd_wall is not None and now - last_cmd_wall > a.lost_after * self.h:
-                self.go_safe(self.plant.t, f"no THR_CMD for {a.lost_after} ticks")
+            for why in watch.poll(now):
+                self.go_safe(self.plant.t, why)
             beat = hb.poll(now, NodeState.SAFE if self.safe else NodeState.RUN)
             if beat:
                 self.port.send(beat)
@@ -405,17 +533,16 @@ class PlantShell:
             wait = min(max(due - t_now, 0.0), REALTIME_MAX_WAIT_S)
             for msg, rx in self.port.poll(wait):
                 rx_sim = self.port.to_monotonic_s(rx) - t0
-                mon.on_message(msg, rx_sim)
+                self.events.extend(watch.on_message(msg, rx_sim))
                 if isinstance(msg, FaultCmd):
                     self.on_fault_cmd(msg)
                 elif isinstance(msg, ThrCmd):
                     t_apply = max(rx_sim, self.plant.t) + cmd_latency
-                    if self.safe and mon.alive:
+                    if self.safe and watch.alive:
                         self.safe = False
                         self.events.append(f"THR_CMD back at {rx_sim:.2f} s: leaving safe state")
                     if not self.safe:
                         self.apply(msg, t_apply)
-                    last_cmd_wall = rx_sim
                     t_meas = self.gyro_time.get(msg.gyro_seq)
                     if t_meas is not None:
                         s2a.append(t_apply - t_meas)
@@ -469,10 +596,12 @@ class FlightShell:
         self.safe = False
         self.gyro: Gyro | None = None
         self.gyro_fresh = False
-        self.ticks_without_gyro = 0
+        self.safety = safety_settings(sc, args)
+        self.gyro_watch = GyroLossWatch(self.safety.gyro_lost_ticks)
         self.last_out = None
         self.late_gyro = 0
-        self.sched: str | None = getattr(args, "sched_note", None)  # into the first record
+        self.first = _first_record(sc, args, {"gyro_lost_ticks": self.safety.gyro_lost_ticks})
+        self.events.extend(self.first.pop("events"))
         if args.mode == "realtime":
             self._warm_up(sc)
 
@@ -499,19 +628,18 @@ class FlightShell:
         """
         fs, clk = self.fs, time.perf_counter_ns
         t_start = clk()
-        if self.gyro is None or not self.gyro_fresh:
-            self.ticks_without_gyro += 1
-        else:
-            self.ticks_without_gyro = 0
-        if self.ticks_without_gyro >= self.args.gyro_lost_after and not self.safe:
+        change = self.gyro_watch.tick(self.gyro is not None and self.gyro_fresh)
+        if change == "lost":
             self.safe = True
             fs.peer_lost()
-            self.events.append(f"safe mode: no valid gyro for {self.ticks_without_gyro} ticks")
+            self.events.append(f"safe mode: no valid gyro for {self.gyro_watch.ticks_without} "
+                               f"ticks: no firing")
             _say("flight", self.events[-1])
-        elif self.safe and self.ticks_without_gyro == 0:
+        elif change == "back":
             self.safe = False
             fs.peer_back()
             self.events.append("gyro back: leaving safe mode")
+            _say("flight", self.events[-1])
         omega = np.zeros(3) if self.gyro is None else np.asarray(self.gyro.omega_B_rad_s)
         self.gyro_fresh = False
         stage_ns = {}
@@ -564,6 +692,7 @@ class FlightShell:
         t1 = clk()
         stage_ns["fdir_tm_out"] = t1 - t0
         compute_s = (t1 - t_start) / 1e9
+        self.thr_cmd_on_ms = 10 * sum(quanta) if cmd is not None else 0
         self.record(n, out, detection, stage_ns, compute_s, jitter_s, rt)
 
     def _reply(self, n, quanta, mask, seq):
@@ -595,6 +724,8 @@ class FlightShell:
             "jitter_s": jitter_s,
             "overruns": self.overruns,
             "safe": self.safe,
+            # What THR_CMD carried (flight/on_ms is the allocator's wish; safe mode zeroes it).
+            "thr_cmd_on_ms": getattr(self, "thr_cmd_on_ms", 0),
             "bus": self.port.counts(),
         }
         if rt is not None:
@@ -603,9 +734,9 @@ class FlightShell:
             rec["series"]["timing/flight_ms"] = {
                 "release_jitter": (jitter_s or 0.0) * 1e3, "gyro_wait": rt["gyro_wait_s"] * 1e3,
                 "compute": compute_s * 1e3}
-        if self.sched is not None:
-            rec["sched"] = self.sched
-            self.sched = None
+        if self.first:
+            rec.update(self.first)
+            self.first = {}
         self.rec.write(rec)
         self.events = []
 
@@ -803,6 +934,36 @@ def _try_realtime_priority(name: str) -> str:
     return ", ".join(notes)
 
 
+def realtime_event(note: str) -> str:
+    """The event line of a ``--rt-priority`` request: says plainly what was refused."""
+    fifo = note.startswith(("SCHED_FIFO", "SCHED_RR"))
+    locked = "memory locked" in note
+    if fifo and locked:
+        return f"--rt: {note}"
+    return f"--rt {'partly refused' if fifo or locked else 'refused'}: {note}"
+
+
+def _ticks(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {n}")
+    return n
+
+
+def _heartbeat_s(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not x > HEARTBEAT_PERIOD_S:
+        raise argparse.ArgumentTypeError(
+            f"expected > the heartbeat period {HEARTBEAT_PERIOD_S:g} s, got {x:g}")
+    return x
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m hil.nodes", description=__doc__.split("\n")[0])
     p.add_argument("node", choices=("plant", "flight"))
@@ -815,11 +976,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="lockstep: wall seconds the plant waits for THR_CMD(n) (generous: a "
                         "loaded machine must not change a lockstep run; once the flight is "
                         "declared lost the wait drops to 50 ms per tick)")
-    p.add_argument("--lost-after", type=int, default=3,
-                   help="ticks without THR_CMD before the plant closes every valve")
-    p.add_argument("--heartbeat-misses", type=int, default=3)
-    p.add_argument("--gyro-lost-after", type=int, default=3,
-                   help="ticks without a valid gyro sample before the flight's safe mode")
+    p.add_argument("--lost-after", type=_ticks,
+                   help="ticks without THR_CMD before the plant closes every valve "
+                        "(default: the scenario's safety.thr_cmd_lost_ticks, 3)")
+    p.add_argument("--heartbeat-lost-s", type=_heartbeat_s,
+                   help="real time: seconds of flight heartbeat silence before the plant "
+                        "closes every valve (default: safety.heartbeat_lost_s, 1.5)")
+    p.add_argument("--gyro-lost-after", type=_ticks,
+                   help="ticks without a valid gyro sample before the flight's safe mode "
+                        "(default: safety.gyro_lost_ticks, 3)")
     p.add_argument("--gyro-wait-ms", type=float, default=50.0,
                    help="real time: longest wait after a release for the tick's gyro sample "
                         "(default 50 ms, a quarter of the tick)")
@@ -850,7 +1015,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.rt_priority:
         args.sched_note = _try_realtime_priority(args.node)
-        _say(args.node, args.sched_note)
+        args.rt_event = realtime_event(args.sched_note)
+        _say(args.node, args.rt_event)
     else:
         args.sched_note = _set_policy(args.node, args.sched)
     shell = (PlantShell if args.node == "plant" else FlightShell)(sc, port, out, args)

@@ -3,9 +3,18 @@
 ``hil fault inject --thruster NAME --type stuck_on|fail_to_fire|degraded [--fraction F]
 [--at T] [--clear-at T]`` sends FAULT_CMD to the running plant and waits for its FAULT_ACK;
 ``hil fault clear [--thruster NAME]`` ends faults; ``hil fault list`` shows the faults the
-running plant has made active (from its per-tick record in the run folder) and the thruster
-names of the vehicle. Everything is checked before anything is sent: an unknown thruster, a
-bad type or a fraction outside [0, 1] gets one line and exit 2, and no frame goes out.
+running plant has made active and not yet ended (from its per-tick record in the run folder)
+and the thruster names of the vehicle. Everything is checked before anything is sent: an
+unknown thruster, a bad type or a fraction outside [0, 1] gets one line and exit 2, and no
+frame goes out.
+
+How the panel finds the running system: over the bus (``--interface``/``--channel``, vcan0 by
+default) for FAULT_CMD and FAULT_ACK, and through the run folder (``--run``, default
+``runs/up``, the default ``--out`` of ``hil up``) for everything else. The plant's first
+record in ``RUN/plant.jsonl`` names its vehicle (``config``, see ``hil.nodes``), so thruster
+names are checked against the vehicle actually flying; ``--vehicle`` overrides it (and is
+needed when no run folder is there). Where the kernel has no CAN, ``hil up`` runs inside
+user-mode Linux with its own vcan0: the panel must run in that same instance to reach it.
 """
 
 from __future__ import annotations
@@ -17,19 +26,21 @@ from pathlib import Path
 
 from bus.catalog import AckReason, AckStatus, FaultAction, FaultKind
 from bus.codec import FaultAck, FaultCmd
-from hil.config import load_vehicle
-from hil.errors import BusError, FaultCommandError
+from hil.config import VehicleCfg, load_vehicle
+from hil.errors import BusError, FaultCommandError, UsageError
 from hil.recorder import read_jsonl
+from hil.summary import apply_clear
 
 TYPES = {"stuck_on": FaultKind.STUCK_ON, "fail_to_fire": FaultKind.FAIL_TO_FIRE,
          "degraded": FaultKind.DEGRADED}
 
 
-def build_command(vehicle: str, action: str, thruster: str | None, kind: str | None,
-                  fraction: float | None, at_s: float | None, clear_at_s: float | None,
-                  request_id: int) -> FaultCmd:
-    """Validate a panel request against the vehicle and build its FAULT_CMD (pure)."""
-    v = load_vehicle(vehicle)
+def build_command(vehicle: str | VehicleCfg, action: str, thruster: str | None,
+                  kind: str | None, fraction: float | None, at_s: float | None,
+                  clear_at_s: float | None, request_id: int) -> FaultCmd:
+    """Validate a panel request against the vehicle (a name, a path or a loaded one) and
+    build its FAULT_CMD (pure apart from reading the vehicle file)."""
+    v = vehicle if isinstance(vehicle, VehicleCfg) else load_vehicle(vehicle)
     names = [t.name for t in v.thrusters]
     idx = None
     if thruster is not None:
@@ -37,6 +48,7 @@ def build_command(vehicle: str, action: str, thruster: str | None, kind: str | N
             raise FaultCommandError(f"fault: --thruster: expected one of {names}, got {thruster!r}")
         idx = names.index(thruster)
     if action == "clear":
+        # A CLEAR ends every fault of the thruster (or every fault): its kind is "none".
         return FaultCmd(request_id, FaultAction.CLEAR, FaultKind.NONE, idx)
     if kind not in TYPES:
         raise FaultCommandError(f"fault: --type: expected one of {list(TYPES)}, got {kind!r}")
@@ -57,17 +69,32 @@ def build_command(vehicle: str, action: str, thruster: str | None, kind: str | N
                     at_s or 0.0, clear_at_s)
 
 
+RESEND_S = 0.25  # no FAULT_ACK after this long: send the request again (see send_and_wait)
+
+
 def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float) -> FaultAck:
+    """Send ``cmd`` and return the plant's FAULT_ACK; BusError when none comes in time.
+
+    Every panel run is a new process whose E2E alive counters start at 0, so the plant's
+    receiver may refuse its first frames as a repeated counter or a jump (it follows the
+    counter even so). Without an answer the request goes out again every ``RESEND_S``, with
+    the next counter, which the receiver takes; the plant acknowledges a repeated request
+    again without applying it twice (``hil.nodes.PlantShell.on_fault_cmd``).
+    """
     from bus.transport import BusConfig, Port, open_bus
 
     port = Port(open_bus(BusConfig(interface=interface, channel=channel)))
     try:
         port.send(cmd)
-        t_end = time.monotonic() + timeout_s
+        now = time.monotonic()
+        t_end, t_resend = now + timeout_s, now + RESEND_S
         while time.monotonic() < t_end:
             for msg, _ in port.poll(0.05):
                 if isinstance(msg, FaultAck) and msg.request_id == cmd.request_id:
                     return msg
+            if time.monotonic() >= t_resend:
+                port.send(cmd)
+                t_resend += RESEND_S
         raise BusError(f"fault: no FAULT_ACK for request {cmd.request_id} within "
                        f"{timeout_s:g} s: is the plant running on {interface} {channel}?")
     finally:
@@ -81,28 +108,68 @@ def _request_id() -> int:
 _SEQ = itertools.count()
 
 
+def running_config(run: Path) -> dict | None:
+    """The ``config`` of the plant's first record in ``run`` (None when there is none)."""
+    first = next(iter(read_jsonl(Path(run) / "plant.jsonl")), None)
+    return None if first is None else first.get("config")
+
+
+def resolve_vehicle(vehicle: str | None, run: Path) -> tuple[VehicleCfg, str]:
+    """The vehicle to check names against and where it came from (for the output).
+
+    ``--vehicle`` when given; otherwise the one the plant in the run folder flies.
+    """
+    if vehicle is not None:
+        return load_vehicle(vehicle), "--vehicle"
+    cfg = running_config(run)
+    if not cfg or not cfg.get("vehicle"):
+        raise UsageError(f"fault: --vehicle: expected the vehicle of a running `hil up`, got "
+                         f"no plant record in {run}: give --run DIR (the --out of hil up) "
+                         f"or --vehicle V")
+    vfile = cfg.get("vehicle_file")
+    v = load_vehicle(vfile if vfile and Path(vfile).exists() else cfg["vehicle"])
+    return v, f"the plant in {run}"
+
+
 def _cmd(args) -> int:
+    run = Path(args.run)
+    vehicle, source = resolve_vehicle(args.vehicle, run)
     if args.action == "list":
-        return _list(args)
-    cmd = build_command(args.vehicle, args.action, args.thruster, args.type, args.fraction,
+        return _list(vehicle, source, run)
+    cmd = build_command(vehicle, args.action, args.thruster, args.type, args.fraction,
                         args.at, args.clear_at, _request_id())
     ack = send_and_wait(cmd, args.interface, args.channel, args.timeout)
+    what = f"{args.action} {args.type + ' ' if args.type else ''}{args.thruster or 'all'}"
     if ack.status == AckStatus.ACCEPTED:
-        print(f"ok: plant accepted {args.action} {args.type or ''} {args.thruster or 'all'} "
-              f"(request {ack.request_id})")
+        print(f"ok: plant accepted {what} (request {ack.request_id}, vehicle {vehicle.name})")
         return 0
-    print(f"error: plant rejected request {ack.request_id}: {AckReason(ack.reason).name.lower()}")
+    print(f"error: plant rejected {what} (request {ack.request_id}): "
+          f"{AckReason(ack.reason).name.lower()}")
     return 1
 
 
-def _list(args) -> int:
-    v = load_vehicle(args.vehicle)
-    print(f"vehicle {v.name}: thrusters {', '.join(t.name for t in v.thrusters)}")
-    active = []
-    for r in read_jsonl(Path(args.run) / "plant.jsonl"):
-        active.extend(r.get("faults_injected", []))
+def active_faults(records) -> tuple[list[dict], float | None]:
+    """Faults the plant made active and that have not ended by its last record, and the time
+    of that record (``faults_injected`` less panel clears and scheduled ends)."""
+    faults: list[dict] = []
+    now = None
+    for r in records:
+        now = r.get("t_s", now)
+        faults.extend(dict(f) for f in r.get("faults_injected", []))
+        for c in r.get("faults_cleared", []):
+            apply_clear(faults, c)
+    if now is None:
+        return [], None
+    return [f for f in faults if f.get("clear_t_s") is None or f["clear_t_s"] > now], now
+
+
+def _list(vehicle: VehicleCfg, source: str, run: Path) -> int:
+    print(f"vehicle {vehicle.name} ({source}): thrusters "
+          f"{', '.join(t.name for t in vehicle.thrusters)}")
+    active, now = active_faults(read_jsonl(run / "plant.jsonl"))
     if not active:
-        print(f"no fault active in the run at {args.run}")
+        print(f"no fault active in the run at {run}"
+              + ("" if now is None else f" (plant time {now:.1f} s)"))
     for f in active:
         print(json.dumps(f))
     return 0
@@ -117,8 +184,12 @@ def register(sub) -> None:
                    help="stuck_on: residual thrust; degraded: remaining thrust (0..1)")
     p.add_argument("--at", type=float, help="plant time [s] to start (default: now)")
     p.add_argument("--clear-at", type=float, help="plant time [s] to end the fault")
-    p.add_argument("--vehicle", default="generic", help="vehicle of the running system")
-    p.add_argument("--run", default="runs/up", help="run folder of the running system (list)")
+    p.add_argument("--vehicle",
+                   help="vehicle to check thruster names against (default: the one the plant "
+                        "in --run flies)")
+    p.add_argument("--run", default="runs/up",
+                   help="run folder of the running system, the --out of `hil up` (default "
+                        "runs/up): its vehicle and, for list, its faults")
     p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for FAULT_ACK")
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")

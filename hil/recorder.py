@@ -4,19 +4,20 @@ Each process appends one JSON object per tick to its own file in the run directo
 (``plant.jsonl``: the truth; ``flight.jsonl``: the flight software's view) and flushes it at
 once, so a killed process leaves every tick up to the kill on disk. The rerun recording
 (``run.rrd``) puts both on one timeline (``tick`` sequence and ``sim_time`` duration); the
-recorder appends and flushes every tick while the run goes, and ``build_rrd`` rebuilds it from
-the JSON lines after any crash.
+supervisor appends what the processes wrote every 50 ms and flushes, and ``build_rrd`` rebuilds
+it from the JSON lines after any crash.
 
 A record is ``{"tick": n, "t_s": t, "series": {path: {label: value, ...}}, "events": [...]}``.
 Every series becomes one rerun entity holding one scalar per label (one line per label in the
 time-series view). Entity paths (documented in the README):
 
 ========================================  ====================================================
-``truth/omega_deg_s``                     true rigid body rate x, y, z (plant)
+``truth/omega_deg_s``                     true rigid body rate x, y, z relative to the orbit frame
+``truth/omega_BI_deg_s``                  true rigid body rate x, y, z, inertial (as the gyro)
 ``truth/attitude_error_deg``              true attitude error about x, y, z (plant)
 ``truth/thrust_n``                        actual thrust of every thruster (plant)
-``truth/on_ms``                           valve on-time applied in the tick per thruster (plant)
-``truth/flex_rate``                       flex mode coordinate rates (plant)
+``truth/flex_gyro_deg_s``                 the flex modes' rate at the gyro (plant)
+``timing/s2a_ms``                         sensor-to-actuator latency of the tick (plant, real time)
 ``flight/omega_meas_deg_s``               gyro rate as received (flight)
 ``flight/omega_est_deg_s``                observer's rigid rate estimate (flight)
 ``flight/omega_pred_deg_s``               onboard model's one-tick prediction (flight)
@@ -26,6 +27,7 @@ time-series view). Entity paths (documented in the README):
 ``flight/thresholds``                     +threshold_off and -threshold_on (flight)
 ``flight/on_ms``                          commanded on-time per thruster, THR_CMD (flight)
 ``flight/compute_ms``                     per-stage compute time (flight)
+``timing/flight_ms``                      release jitter, gyro wait and compute (flight, real time)
 ``events/plant``, ``events/flight``       faults, detections, safe states, overruns (text log)
 ========================================  ====================================================
 """

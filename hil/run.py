@@ -276,6 +276,7 @@ def _cmd_run(args) -> int:
 def _cmd_up(args) -> int:
     if args.scenario:
         scenario = Path(args.scenario).resolve()
+        load_scenario(scenario)  # config errors exit 2 before anything starts
     else:
         from hil.config import VEHICLE_DIR
 

@@ -8,10 +8,16 @@ type, latency_s, correct}], false_alarms, missed_faults, max_attitude_error_deg,
 max_rate_error_deg_s, fuel_kg, ticks, overruns, compute_ms{p50, p99, max}, bus{...},
 expectations_met, expectation_failures``.
 
-A detection is *correct* when a thruster fault active at the detection time (injected before
-it) names the detected thruster (or is in the detected group) with a compatible type: a
-``degraded`` thruster reported as ``fail_to_fire`` counts (the detector sees too little thrust
-in both cases). Latency is detection time minus the fault's injection time.
+A detection is *correct* when a thruster fault active at the detection time (injected at or
+before it, not cleared before it) names the detected thruster (or is in the detected group)
+with a compatible type: a ``degraded`` thruster reported as ``fail_to_fire`` counts (the
+detector sees too little thrust in both cases). Latency is detection time minus the fault's
+injection time. A fault's clear time is its scheduled ``clear_t_s`` or, when the fault panel
+cleared it (``hil fault clear``), the time in the plant's ``faults_cleared`` record.
+
+Also, where the records carry them: ``safety`` (the safe-state settings the nodes used, from
+their first record's ``config``) and ``sched`` (the scheduler policy each node got, with what
+``--rt`` was refused).
 """
 
 from __future__ import annotations
@@ -45,7 +51,9 @@ def match_detections(
         for k, f in enumerate(faults):
             if f.get("thruster") is None or f["t_s"] > d["t_s"] + 1e-9:
                 continue
-            if f.get("clear_t_s") is not None and f["clear_t_s"] < f["t_s"]:
+            # Cleared before the detection: not the fault detected. A detection at the clear
+            # time still counts (computed from measurements taken while it was active).
+            if f.get("clear_t_s") is not None and f["clear_t_s"] < d["t_s"] - 1e-9:
                 continue
             if f["thruster"] in _names(d["thruster"]) and d["type"] in COMPATIBLE.get(
                 f["type"], {f["type"]}
@@ -65,6 +73,20 @@ def match_detections(
         if f.get("thruster") is not None and k not in detected_faults
     ]
     return out, false_alarms, missed
+
+
+def apply_clear(faults: list[dict[str, Any]], cleared: dict[str, Any]) -> None:
+    """Give the fault a panel clear ended (same thruster, type and start) its clear time."""
+    for f in faults:
+        if (f.get("thruster"), f.get("type"), f.get("t_s")) == (
+                cleared.get("thruster"), cleared.get("type"), cleared.get("t_on_s")) and \
+                (f.get("clear_t_s") is None or f["clear_t_s"] > cleared["t_s"]):
+            f["clear_t_s"] = cleared["t_s"]
+
+
+def _first(records: list[dict[str, Any]], key: str) -> Any:
+    """The value of ``key`` in the first record that has it ({} when none)."""
+    return next((r[key] for r in records if r.get(key)), {})
 
 
 def longest_excursion_s(samples: list[tuple[float, float]], band: float) -> float:
@@ -158,7 +180,9 @@ def summarise(
     """Build ``summary.json`` from the per-tick records of both processes."""
     faults: list[dict[str, Any]] = []
     for r in plant_records:
-        faults.extend(r.get("faults_injected", []))
+        faults.extend(dict(f) for f in r.get("faults_injected", []))
+        for c in r.get("faults_cleared", []):
+            apply_clear(faults, c)
     detections: list[dict[str, Any]] = []
     for r in flight_records:
         if r.get("detection"):
@@ -178,7 +202,8 @@ def summarise(
         "vehicle": vehicle,
         "mode": mode,
         "faults": [
-            {k: f.get(k) for k in ("t_s", "thruster", "type", "fraction")} for f in faults
+            {k: f.get(k) for k in ("t_s", "thruster", "type", "fraction", "clear_t_s")}
+            for f in faults
         ],
         "detections": matched,
         "false_alarms": false_alarms,
@@ -195,6 +220,14 @@ def summarise(
         "safe_events": [e for r in plant_records + flight_records for e in r.get("events", [])
                         if "safe" in e or "lost" in e],
     }
+    safety = {**_first(plant_records, "config").get("safety", {}),
+              **_first(flight_records, "config").get("safety", {})}
+    if safety:
+        summary["safety"] = safety
+    sched = {k: _first(recs, "sched") or None
+             for k, recs in (("plant", plant_records), ("flight", flight_records))}
+    if any(sched.values()):
+        summary["sched"] = sched
     last_dv = next((r["dv_B_m_s"] for r in reversed(plant_records) if "dv_B_m_s" in r), None)
     summary["delta_v_B_m_s"] = None if last_dv is None else [round(float(x), 4) for x in last_dv]
     if expect is not None and expect.rate_band_deg_s is not None:

@@ -26,6 +26,54 @@ def test_wrong_type_before_fault_or_wrong_thruster_are_false_alarms() -> None:
     assert len(fa) == 3 and missed == [FAULT]
 
 
+def test_a_detection_after_the_fault_was_cleared_is_a_false_alarm() -> None:
+    # X+ stuck on from 18 s to 20 s; a detection at 25 s is not of this fault (before the
+    # fix the clear time was compared with the fault's own start and this counted as correct).
+    cleared = dict(FAULT, clear_t_s=20.0)
+    rows, fa, missed = match_detections(
+        [cleared], [{"t_s": 25.0, "thruster": "X+", "type": "stuck_on"}])
+    assert rows[0]["correct"] is False and rows[0]["latency_s"] is None
+    assert fa == rows and missed == [cleared]
+
+
+def test_a_detection_while_the_fault_is_active_or_at_its_clear_time_counts() -> None:
+    cleared = dict(FAULT, clear_t_s=20.0)
+    for t in (19.0, 20.0):
+        rows, fa, missed = match_detections(
+            [cleared], [{"t_s": t, "thruster": "X+", "type": "stuck_on"}])
+        assert rows[0]["correct"] and fa == [] and missed == [], t
+
+
+def test_a_fault_cleared_by_the_panel_ends_at_the_clear_record() -> None:
+    # `hil fault clear` at 20 s: the plant records it in `faults_cleared`; a detection at
+    # 25 s is then a false alarm and the fault missed, as for a scheduled clear.
+    plant = _plant([18.0, 20.0], [0.1, 0.1], [0.0, 0.0], faults=[FAULT])
+    plant[1]["faults_cleared"] = [{"thruster": "X+", "type": "stuck_on", "t_on_s": 18.0,
+                                   "t_s": 20.0}]
+    flight = [{"t_s": 25.0, "detection": {"t_s": 25.0, "thruster": "X+", "type": "stuck_on"}}]
+    s = summarise(scenario="s", vehicle="generic", mode="realtime", plant_records=plant,
+                  flight_records=flight, expect=None)
+    assert s["faults"] == [dict(FAULT, clear_t_s=20.0)]
+    assert len(s["false_alarms"]) == 1 and len(s["missed_faults"]) == 1
+
+
+def test_safety_settings_and_scheduler_policy_come_from_the_first_records() -> None:
+    plant = _plant([0.0, 0.2], [0.1, 0.1], [0.0, 0.0])
+    plant[0].update(config={"safety": {"thr_cmd_lost_ticks": 4, "heartbeat_lost_s": 2.0}},
+                    sched="SCHED_FIFO 40, memory locked")
+    flight = [{"tick": 0, "t_s": 0.0, "config": {"safety": {"gyro_lost_ticks": 5}},
+               "sched": "SCHED_OTHER, SCHED_FIFO refused (PermissionError: x)"}]
+    s = summarise(scenario="s", vehicle="generic", mode="realtime", plant_records=plant,
+                  flight_records=flight, expect=None)
+    assert s["safety"] == {"thr_cmd_lost_ticks": 4, "heartbeat_lost_s": 2.0,
+                           "gyro_lost_ticks": 5}
+    assert s["sched"] == {"plant": "SCHED_FIFO 40, memory locked",
+                          "flight": "SCHED_OTHER, SCHED_FIFO refused (PermissionError: x)"}
+    bare = summarise(scenario="s", vehicle="generic", mode="lockstep",
+                     plant_records=_plant([0.0], [0.1], [0.0]), flight_records=[], expect=None)
+    assert "safety" not in bare and "sched" not in bare
+
+
 def test_group_report_and_degraded_as_fail_to_fire() -> None:
     faults = [{"t_s": 5.0, "thruster": "B", "type": "degraded", "fraction": 0.3}]
     rows, fa, _ = match_detections(faults, [{"t_s": 6.0, "thruster": ["A", "B"],

@@ -1,0 +1,314 @@
+"""Safe states (DESIGN.md section 4, issue 5 item 4), without sockets or with python-can's
+in-process ``virtual`` bus.
+
+Flight: safe mode (no firing, FDIR_STATUS safe flag, an event) after ``gyro_lost_ticks`` ticks
+with no accepted gyro sample, whether none came or every one was rejected; left on the next
+valid one. Plant (real time): every valve and manifold closed when THR_CMD stopped for
+``thr_cmd_lost_ticks`` ticks or the flight heartbeat was silent for ``heartbeat_lost_s``;
+(lockstep): when THR_CMD misses its deadline ``thr_cmd_lost_ticks`` times in a row. The counts
+come from the scenario's ``safety:`` block; ``python -m hil.nodes`` flags override them.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from bus.catalog import Node, NodeState
+from bus.codec import FdirStatus, Frame, Gyro, Heartbeat, ThrCmd
+from bus.transport import BusConfig, Port, open_bus
+from hil.config import load_scenario
+from hil.nodes import (
+    FlightLinkWatch,
+    FlightShell,
+    GyroLossWatch,
+    PlantShell,
+    _open_port,
+    build_parser,
+    safety_settings,
+)
+from hil.recorder import read_jsonl
+
+
+def _scenario(tmp_path: Path, safety: str = "", duration_s: float = 30.0) -> Path:
+    p = tmp_path / "s.yaml"
+    p.write_text("name: safe\nvehicle: generic\n"
+                 f"duration_s: {duration_s}\nseed: 0\n"
+                 "initial: {attitude: {axis: [1, 0, 0], angle_deg: 10.0}}\n" + safety)
+    return p
+
+
+def _args(node: str, scen: Path, out: Path, channel: str, mode: str, *extra: str):
+    return build_parser().parse_args(
+        [node, "--scenario", str(scen), "--out", str(out), "--mode", mode,
+         "--interface", "virtual", "--channel", channel, *extra])
+
+
+def _channel() -> str:
+    return f"safe-{uuid.uuid4().hex[:12]}"
+
+
+# ----------------------------------------------------------------------------- pure watches
+
+
+def test_gyro_loss_watch_enters_after_n_ticks_and_leaves_on_the_next_sample() -> None:
+    w = GyroLossWatch(3)
+    got = [w.tick(f) for f in (True, False, False, True, False, False, False, False, True)]
+    # A gap of 2 is not a loss; the 3rd tick in a row without a sample is; the next one back.
+    assert got == [None, None, None, None, None, None, "lost", None, "back"]
+    assert not w.safe and w.ticks_without == 0
+    with pytest.raises(ValueError, match="lost_ticks: expected >= 1, got 0"):
+        GyroLossWatch(0)
+
+
+def test_flight_link_watch_thr_cmd_stopped() -> None:
+    w = FlightLinkWatch(tick_s=0.2, thr_cmd_lost_ticks=2, heartbeat_lost_s=1.0)
+    beat = Heartbeat(Node.FLIGHT, NodeState.RUN)
+    cmd = ThrCmd(0, (0,) * 6, 1, 0)
+    t = 0.0
+    for _ in range(5):  # commands and beats every tick
+        w.on_message(beat, t)
+        w.on_message(cmd, t)
+        assert w.poll(t) == []
+        t += 0.2
+    last_cmd = t - 0.2
+    # Heartbeats go on, commands stop: lost once more than 2 ticks passed, said once.
+    assert w.poll(last_cmd + 0.39) == []
+    w.on_message(beat, last_cmd + 0.39)
+    assert w.poll(last_cmd + 0.41) == ["no THR_CMD for 2 ticks"]
+    assert w.poll(last_cmd + 0.6) == [] and w.alive
+    w.on_message(cmd, last_cmd + 0.7)  # back: a later gap is a new loss
+    assert w.poll(last_cmd + 1.2) == ["no THR_CMD for 2 ticks"]
+
+
+def test_flight_link_watch_heartbeat_lost_and_back() -> None:
+    w = FlightLinkWatch(tick_s=0.2, thr_cmd_lost_ticks=3, heartbeat_lost_s=1.0)
+    assert w.poll(0.99) == []
+    assert w.poll(1.01) == ["flight heartbeat lost (1.01 s silent)"]  # none since the start
+    assert w.poll(5.0) == [] and not w.alive
+    assert w.on_message(Heartbeat(Node.FLIGHT, NodeState.RUN), 5.0) == [
+        "flight heartbeat back at 5.00 s"]
+    assert w.alive and w.poll(5.9) == []
+    assert w.on_message(Heartbeat(Node.PLANT, NodeState.RUN), 6.0) == []  # its own: ignored
+    assert w.poll(6.01) == ["flight heartbeat lost (1.01 s silent)"]
+
+
+def test_settings_come_from_the_scenario_and_the_node_flags_override(tmp_path) -> None:
+    scen = _scenario(tmp_path, "safety: {thr_cmd_lost_ticks: 5, heartbeat_lost_s: 2.5, "
+                               "gyro_lost_ticks: 4}\n")
+    sc = load_scenario(scen)
+    base = _args("plant", scen, tmp_path, "x", "lockstep")
+    assert safety_settings(sc, base).model_dump() == {
+        "thr_cmd_lost_ticks": 5, "heartbeat_lost_s": 2.5, "gyro_lost_ticks": 4}
+    over = _args("plant", scen, tmp_path, "x", "lockstep", "--lost-after", "2",
+                 "--heartbeat-lost-s", "0.8", "--gyro-lost-after", "6")
+    assert safety_settings(sc, over).model_dump() == {
+        "thr_cmd_lost_ticks": 2, "heartbeat_lost_s": 0.8, "gyro_lost_ticks": 6}
+    default = load_scenario(_scenario(tmp_path))
+    assert safety_settings(default, base).model_dump() == {
+        "thr_cmd_lost_ticks": 3, "heartbeat_lost_s": 1.5, "gyro_lost_ticks": 3}
+
+
+@pytest.mark.parametrize(("flag", "value", "msg"), [
+    ("--lost-after", "0", "expected an integer >= 1, got 0"),
+    ("--gyro-lost-after", "two", "expected an integer >= 1, got 'two'"),
+    ("--heartbeat-lost-s", "0.5", "expected > the heartbeat period 0.5 s, got 0.5"),
+])
+def test_node_flags_are_checked(tmp_path, capsys, flag, value, msg) -> None:
+    with pytest.raises(SystemExit) as info:
+        _args("plant", tmp_path / "s.yaml", tmp_path, "x", "lockstep", flag, value)
+    assert info.value.code == 2 and msg in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- flight shell
+
+
+class _FlightBench:
+    """A ``FlightShell`` on a virtual bus and a port playing the plant; ticks driven by hand."""
+
+    def __init__(self, tmp_path: Path, safety: str) -> None:
+        ch = _channel()
+        scen = _scenario(tmp_path, safety)
+        self.out = tmp_path / "flight"
+        self.out.mkdir()
+        args = _args("flight", scen, self.out, ch, "lockstep")
+        self.shell = FlightShell(load_scenario(scen), _open_port(args, self.out, "flight"),
+                                 self.out, args)
+        self.plant = Port(open_bus(BusConfig(interface="virtual", channel=ch)))
+        self.seq = 0
+
+    def gyro(self, corrupt: bool = False) -> None:
+        msg = Gyro(self.seq, (0.001, -0.002, 0.0005), 1)
+        self.seq += 1
+        if not corrupt:
+            self.plant.send(msg)
+            return
+        for fr in self.plant.protect(msg):  # CRC broken: the receiver rejects it
+            self.plant.send_frame(Frame(fr.arbitration_id, bytes([fr.data[0] ^ 0xFF])
+                                        + fr.data[1:]))
+
+    def tick(self, n: int) -> tuple[ThrCmd, FdirStatus]:
+        self.shell.absorb(self.shell.port.poll(0.02))
+        self.shell.tick(n)
+        got = {type(m): m for m, _ in self.plant.poll(0.05)}
+        return got[ThrCmd], got[FdirStatus]
+
+    def records(self) -> list[dict]:
+        self.shell.rec.close()
+        return list(read_jsonl(self.out / "flight.jsonl"))
+
+    def close(self) -> None:
+        self.shell.port.close()
+        self.plant.close()
+
+
+def test_flight_goes_safe_when_the_gyro_stops_and_comes_back(tmp_path) -> None:
+    b = _FlightBench(tmp_path, "safety: {gyro_lost_ticks: 4}\n")
+    try:
+        cmds = []
+        for n in range(5):
+            b.gyro()
+            cmds.append(b.tick(n))
+        assert any(sum(c.on_quanta) for c, _ in cmds), "the flight should fire at 10 deg"
+        assert not any(f.safe_mode for _, f in cmds)
+        stopped = [b.tick(n) for n in range(5, 12)]  # the gyro stops
+        # Ticks 5, 6, 7 without a sample: still flying; the 4th (tick 8) goes safe.
+        assert [f.safe_mode for _, f in stopped] == [False] * 3 + [True] * 4
+        assert all(sum(c.on_quanta) == 0 for c, _ in stopped[3:])
+        b.gyro()
+        back_cmd, back_fdir = b.tick(12)
+        assert not back_fdir.safe_mode
+    finally:
+        b.close()
+    recs = b.records()
+    assert recs[0]["config"]["safety"] == {"gyro_lost_ticks": 4}
+    assert recs[0]["config"]["vehicle"] == "generic"
+    # (The made-up gyro does not match the flight's model: detections come too; not checked.)
+    events = {r["tick"]: [e for e in r["events"] if "safe mode" in e] for r in recs
+              if any("safe mode" in e for e in r["events"])}
+    assert events == {8: ["safe mode: no valid gyro for 4 ticks: no firing"],
+                      12: ["gyro back: leaving safe mode"]}
+    assert [r["safe"] for r in recs] == [False] * 8 + [True] * 4 + [False]
+    assert all(r["thr_cmd_on_ms"] == 0 for r in recs[8:12])
+    assert sum(r["thr_cmd_on_ms"] for r in recs[:5]) > 0
+
+
+def test_rejected_gyro_samples_count_as_no_gyro(tmp_path) -> None:
+    b = _FlightBench(tmp_path, "safety: {gyro_lost_ticks: 2}\n")
+    try:
+        b.gyro()
+        assert not b.tick(0)[1].safe_mode
+        b.gyro(corrupt=True)
+        assert not b.tick(1)[1].safe_mode
+        b.gyro(corrupt=True)
+        cmd, fdir = b.tick(2)
+        assert fdir.safe_mode and sum(cmd.on_quanta) == 0
+        assert b.shell.port.counts()["bad_crc"] >= 2
+    finally:
+        b.close()
+    assert b.records()[2]["events"] == ["safe mode: no valid gyro for 2 ticks: no firing"]
+
+
+# ----------------------------------------------------------------------------- plant shell
+
+
+def _plant_bench(tmp_path: Path, safety: str, duration_s: float, mode: str):
+    ch = _channel()
+    scen = _scenario(tmp_path, safety, duration_s)
+    out = tmp_path / "plant"
+    out.mkdir()
+    extra = ["--reply-timeout", "0.05"] if mode == "lockstep" else []
+    args = _args("plant", scen, out, ch, mode, *extra)
+    shell = PlantShell(load_scenario(scen), _open_port(args, out, "plant"), out, args)
+    flight = Port(open_bus(BusConfig(interface="virtual", channel=ch)))
+    return shell, flight, out
+
+
+SLACK_S = 0.6  # how late a wall-clock deadline may be seen on a loaded machine
+
+
+def _closed_at(event: str) -> float:
+    """The plant time in "safe: all valves and manifolds closed at 1.23 s (...)"."""
+    return float(re.match(r"safe: all valves and manifolds closed at ([0-9.]+) s", event)[1])
+
+
+def test_realtime_plant_closes_every_valve_when_thr_cmd_stops(tmp_path) -> None:
+    """The real loop (``PlantShell.run_realtime``, wall clock) with a fake flight that beats
+    all along, fires every thruster for 0.6 s and then stops commanding."""
+    shell, flight, out = _plant_bench(
+        tmp_path, "safety: {thr_cmd_lost_ticks: 2, heartbeat_lost_s: 1.0}\n", 1.6, "realtime")
+    done = threading.Event()
+    t_last_cmd: list[float] = []
+
+    def fake_flight() -> None:
+        t0 = time.monotonic()
+        k = 0
+        while not done.is_set() and time.monotonic() - t0 < 1.6:
+            flight.send(Heartbeat(Node.FLIGHT, NodeState.RUN))
+            if time.monotonic() - t0 < 0.6:
+                flight.send(ThrCmd(k, (20,) * 6, 1, 0))
+                t_last_cmd.append(time.monotonic() - t0)
+            k += 1
+            time.sleep(0.1)
+
+    th = threading.Thread(target=fake_flight)
+    th.start()
+    try:
+        assert shell.run_realtime(lambda: False) == 0
+    finally:
+        done.set()
+        th.join()
+        shell.port.close()
+        flight.close()
+    recs = [r for r in read_jsonl(out / "plant.jsonl") if not r.get("final")]
+    assert recs[0]["config"]["safety"] == {"thr_cmd_lost_ticks": 2, "heartbeat_lost_s": 1.0}
+    events = [e for r in recs for e in r["events"] if e.startswith("safe:")]
+    assert len(events) == 1 and events[0].endswith("(no THR_CMD for 2 ticks)"), events
+    closed_at = _closed_at(events[0])
+    # The last command came at ~0.5 s: closed 2 ticks (0.4 s) later, not before (the two
+    # clocks start a few ms apart), and not much after (slack for a loaded machine).
+    assert t_last_cmd[-1] + 0.4 - 0.05 <= closed_at <= t_last_cmd[-1] + 0.4 + SLACK_S, \
+        (t_last_cmd, events)
+    safe_at = next(r["t_s"] for r in recs if r["safe"])
+    # It fired before; after the closure (valves and manifolds, decay < 0.1 s) nothing burns.
+    assert max(max(r["series"]["truth/thrust_n"].values()) for r in recs
+               if r["t_s"] < 0.6) > 0.5
+    after = [r for r in recs if r["t_s"] >= safe_at + 0.2]
+    assert after and all(max(r["series"]["truth/thrust_n"].values()) < 1e-6 for r in after)
+
+
+def test_realtime_plant_closes_every_valve_when_the_heartbeat_is_lost(tmp_path) -> None:
+    """The flight never beats: lost ``heartbeat_lost_s`` after the plant's start."""
+    shell, flight, out = _plant_bench(tmp_path, "safety: {heartbeat_lost_s: 0.6}\n", 1.2,
+                                      "realtime")
+    try:
+        assert shell.run_realtime(lambda: False) == 0
+    finally:
+        shell.port.close()
+        flight.close()
+    recs = [r for r in read_jsonl(out / "plant.jsonl") if not r.get("final")]
+    events = [e for r in recs for e in r["events"] if e.startswith("safe:")]
+    assert len(events) == 1 and "(flight heartbeat lost (0.6" in events[0], events
+    assert 0.6 <= _closed_at(events[0]) <= 0.6 + SLACK_S, events
+    assert all(r["safe"] for r in recs if r["t_s"] > _closed_at(events[0]) + 0.01)
+
+
+def test_lockstep_plant_goes_safe_after_the_configured_missed_commands(tmp_path) -> None:
+    """No flight on the bus: every tick's THR_CMD misses its (50 ms) deadline."""
+    shell, flight, out = _plant_bench(tmp_path, "safety: {thr_cmd_lost_ticks: 4}\n", 1.6,
+                                      "lockstep")
+    try:
+        assert shell.run_lockstep(lambda: False) == 0
+    finally:
+        shell.port.close()
+        flight.close()
+    recs = [r for r in read_jsonl(out / "plant.jsonl") if not r.get("final")]
+    assert [r["safe"] for r in recs] == [False] * 3 + [True] * 5
+    assert recs[3]["events"][-1] == ("safe: all valves and manifolds closed at 0.60 s "
+                                     "(no THR_CMD for 4 ticks)")
+    assert recs[0]["config"]["safety"]["thr_cmd_lost_ticks"] == 4
