@@ -40,7 +40,7 @@ Forgetting = Annotated[float, Field(gt=0, lt=1)]
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 # --------------------------------------------------------------------------- vehicle: hardware
@@ -78,6 +78,15 @@ class ThrustProfileCfg(_Model):
     electrical_delay_ms: NonNegFloat = 10.0
     rise_exponent: PosFloat = 2.0
     decay_exponent: PosFloat = 1.0
+
+    @model_validator(mode="after")
+    def _lags_after_the_delay(self) -> ThrustProfileCfg:
+        # Equal-area lags include the electrical delay: the profile cannot be calibrated below it.
+        for name in ("on_lag_ms", "off_lag_ms"):
+            if getattr(self, name) <= self.electrical_delay_ms:
+                raise _FieldError(name, f"> electrical_delay_ms ({self.electrical_delay_ms:g})",
+                                  getattr(self, name))
+        return self
 
 
 class TimingCfg(_Model):
@@ -131,6 +140,13 @@ class FlexModeCfg(_Model):
     gyro_phi: Vec3
     default: ModeShapeCfg = ModeShapeCfg()
     thrusters: dict[str, ModeShapeCfg] = {}
+
+    @model_validator(mode="after")
+    def _oscillating(self) -> FlexModeCfg:
+        # delta >= 2 pi: the damping sigma = delta lambda reaches 2 pi lambda, no ringing at all.
+        if self.log_decrement >= 2.0 * math.pi:
+            raise _FieldError("log_decrement", "< 2 pi (an oscillating mode)", self.log_decrement)
+        return self
 
 
 class GyroCfg(_Model):
@@ -544,6 +560,7 @@ _EXPECT = {
     "extra_forbidden": lambda c: "no such field (unknown key)",
     "float_parsing": lambda c: "a number",
     "float_type": lambda c: "a number",
+    "finite_number": lambda c: "a finite number",
     "int_parsing": lambda c: "an integer",
     "int_type": lambda c: "an integer",
     "int_from_float": lambda c: "an integer",
@@ -703,7 +720,8 @@ def load_any(path: str | Path) -> VehicleCfg | Scenario:
     """Validate a vehicle or a scenario file (a scenario has a ``vehicle`` key)."""
     path = Path(path)
     data = _read_yaml(path)
-    if "vehicle" in data and "thrusters" not in data:
+    scenario_keys = {"vehicle", "duration_s", "faults", "expect", "initial", "target"}
+    if "thrusters" not in data and scenario_keys & set(data):
         return load_scenario(path)
     return load_vehicle(path)
 
