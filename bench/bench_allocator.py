@@ -1,7 +1,8 @@
 """Allocation time per tick (seed 004 LP + scaling + quantisation) on a stream of demands.
 
 Prints p50 / p99 / max per allocation for each solver and ``scipy.optimize.linprog`` (HiGHS) on
-the same LP problems in the same run, and the ratio. Vehicle: ``orel`` (30 thrusters) when its
+the same LP problems in the same run, and the ratio. Garbage collection as in the flight process
+(``hil.nodes.quiet_gc``/``idle_gc``: collected every 10 ticks outside the timed call). Vehicle: ``orel`` (30 thrusters) when its
 file exists, else a synthetic 30-thruster set. A figure, not a test: nothing here fails on speed.
 ``hil bench`` reports the same comparison (``hil.bench.compare_allocator``, the same demands).
 
@@ -22,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from flight.allocator import Allocator, linprog_solve  # noqa: E402
 from hil.bench import demand_stream  # noqa: E402
 from hil.config import VEHICLE_DIR, load_vehicle  # noqa: E402
+from hil.nodes import idle_gc, quiet_gc  # noqa: E402
 
 
 def _synthetic():
@@ -47,16 +49,18 @@ def main() -> int:
         print(f"{args.vehicle}.yaml not found: synthetic 30-thruster set")
         vehicle = _synthetic()
     problems = list(demand_stream(args.ticks))
+    quiet_gc()
     ref = Allocator(vehicle, solver="simplex")
     times: dict[str, list[float]] = {}
     statuses: dict[str, int] = {}
     for solver in ("simplex", "highs"):
         alloc = Allocator(vehicle, solver=solver)
         ts = times[solver] = []
-        for lo, hi in problems:
+        for k, (lo, hi) in enumerate(problems):
             t0 = time.perf_counter()
             a = alloc.allocate(lo, hi)
             ts.append(time.perf_counter() - t0)
+            idle_gc(k)
             if solver == "simplex":
                 statuses[a.status] = statuses.get(a.status, 0) + 1
     # linprog on the same (scaled) LPs, the first solve of each tick.
@@ -66,7 +70,8 @@ def main() -> int:
     A, c = ref._A6[:3], ref._c
     ub = np.full(ref.n, ref.tau_max_s / ref.h_s)
     lp_only = []
-    for lo, hi in problems:
+    for k, (lo, hi) in enumerate(problems):
+        idle_gc(k)
         t0 = time.perf_counter()
         linprog_solve(A, c, lo / rs, hi / rs, ub)
         ts.append(time.perf_counter() - t0)
