@@ -2,8 +2,9 @@
 
 Prints p50 / p99 / max per allocation for each solver and ``scipy.optimize.linprog`` (HiGHS) on
 the same LP problems in the same run, and the ratio. Garbage collection as in the flight process
-(``hil.nodes.quiet_gc``/``idle_gc``: collected every 10 ticks outside the timed call). Vehicle: ``orel`` (30 thrusters) when its
-file exists, else a synthetic 30-thruster set. A figure, not a test: nothing here fails on speed.
+(``hil.nodes.quiet_gc``/``idle_gc``: collected every 10 ticks outside the timed call). Vehicle:
+``orel`` (30 thrusters) when its file exists, else a synthetic 30-thruster set. A figure, not a
+test: nothing here fails on speed.
 ``hil bench`` reports the same comparison (``hil.bench.compare_allocator``, the same demands).
 
     .venv/bin/python bench/bench_allocator.py [--ticks 2000] [--vehicle orel]

@@ -21,7 +21,6 @@ measures both paths). Every other interface goes through python-can unchanged.
 from __future__ import annotations
 
 import collections
-
 import select
 import socket
 import time

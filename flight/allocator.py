@@ -190,7 +190,7 @@ def dual_simplex(
         beta[r] = z[q] + delta
         f = d[q] / a_rq
         if f != 0.0:
-            d[:] = [dj - f * aj for dj, aj in zip(d, alpha)]
+            d[:] = [dj - f * aj for dj, aj in zip(d, alpha, strict=True)]
         d[q] = 0.0
         # Pivot on (r, q).
         prow = [v / a_rq for v in alpha]
@@ -199,7 +199,7 @@ def dual_simplex(
             if i != r:
                 f = T[i][q]
                 if f != 0.0:
-                    T[i] = [v - f * w for v, w in zip(T[i], prow)]
+                    T[i] = [v - f * w for v, w in zip(T[i], prow, strict=True)]
                     T[i][q] = 0.0
         prow[q] = 1.0
         z[leave] = bound

@@ -120,7 +120,8 @@ class Quantiser:
         """
         return self.step_eff(tau_eff_s, available)[0]
 
-    def step_eff(self, tau_eff_s: np.ndarray, available: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def step_eff(self, tau_eff_s: np.ndarray,
+                 available: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """As :meth:`step`; also returns the effective times (N,) s of the commands."""
         demand_ms = np.asarray(tau_eff_s, dtype=float) * 1000.0
         active = np.asarray(available, dtype=bool) & (demand_ms > 0.0)

@@ -28,6 +28,7 @@ from hil.nodes import (
     FlightShell,
     GyroLossWatch,
     PlantShell,
+    _lockstep_receiver,
     _open_port,
     build_parser,
     safety_settings,
@@ -139,7 +140,9 @@ class _FlightBench:
         args = _args("flight", scen, self.out, ch, "lockstep")
         self.shell = FlightShell(load_scenario(scen), _open_port(args, self.out, "flight"),
                                  self.out, args)
-        self.plant = Port(open_bus(BusConfig(interface="virtual", channel=ch)))
+        # Age limits of the lockstep (a loaded machine must not make frames stale here).
+        self.plant = Port(open_bus(BusConfig(interface="virtual", channel=ch)),
+                          receiver=_lockstep_receiver(2.0))
         self.seq = 0
 
     def gyro(self, corrupt: bool = False) -> None:
