@@ -60,6 +60,8 @@ from plant.thruster import (
 # Times closer than this are the same instant (float tick arithmetic).
 _EPS_S = 1e-9
 
+_ZERO3 = (0.0, 0.0, 0.0)
+
 # Event kinds, in processing order at equal times.
 _EV_MAN, _EV_CMD, _EV_FAULT, _EV_MARK = 0, 1, 2, 3
 
@@ -168,6 +170,7 @@ class Plant:
         self.thrust_actual_n = a.thrust_n * scale
         self.d_actual_B = perturbed_directions(a.d_B, ov.direction_error_deg, rng_dir)
         self.isp_s = np.array([t.isp_s for t in vehicle.thrusters])
+        self._isp_g0 = self.isp_s * G0_M_S2  # fuel per newton second: 1 / (Isp g0)
         flex_b = influence_matrix(vehicle.flex_modes, a.names, a.r_B_m, self.d_actual_B)
         P = self.thrust_actual_n[:, None]
         # Per-thruster weights of the exact impulse: force (3), torque (3), modal forcing (n).
@@ -181,6 +184,7 @@ class Plant:
         self.faults = FaultState(vehicle)
         self.flex = FlexModes(vehicle.flex_modes, flex_b)
         self.gyro = Gyro(vehicle.gyro, (rng_gn, rng_gw, rng_gf))
+        self._gyro_integrating = vehicle.gyro.kind == "integrating"
 
         # Initial attitude and rate relative to the orbit frame (module doc).
         w0 = vehicle.orbit.rate_rad_s
@@ -198,6 +202,8 @@ class Plant:
         const = self.overrides.disturbance_torque_B_Nm
         self._dist_const = np.array(dist.constant_torque_B_Nm if const is None else const,
                                     dtype=float)
+        self._dist_const_l = self._dist_const.tolist()
+        self._zero_modes = [0.0] * len(vehicle.flex_modes)
         self._dist_std = float(dist.random_torque_std_Nm)
 
         self.t = 0.0
@@ -211,14 +217,15 @@ class Plant:
         self._man_cmd = np.ones(self.n_man, dtype=bool)
         self._last_apply_s = -math.inf
         # Effective (after T_R) discrete state that sets each thruster's target.
-        self._cmd_eff = np.zeros(self.n_thr, dtype=bool)
-        self._man_eff = np.ones(self.n_man, dtype=bool)
+        self._cmd_eff = [False] * self.n_thr
+        self._man_eff = [True] * self.n_man
+        self._manifold_of = [int(m) for m in a.manifold_of]
 
         self.impulse_Ns = np.zeros(self.n_thr)
         self.fuel_kg = np.zeros(self.n_thr)
         self.dv_B = [0.0, 0.0, 0.0]
         self.dv_O = [0.0, 0.0, 0.0]
-        self._theta_rigid = np.zeros(3)  # int w_B dt since the last gyro sample
+        self._theta_rigid = [0.0, 0.0, 0.0]  # int w_B dt since the last gyro sample
         self._next_sample_k = 0
         self._samples: list[GyroSample] = []
         self._pending_ticks: dict[int, tuple] = {}
@@ -249,7 +256,7 @@ class Plant:
             t_apply = max(self.t, self._last_apply_s)
         self._last_apply_s = t_apply
         applied, clamped = clamp_on_ms(req, self.allowed_on_ms)
-        self.counters["clamped_commands"] += int(clamped.sum())
+        self.counters["clamped_commands"] += int(np.count_nonzero(clamped))
         if manifold_open is not None:
             self._command_manifolds(t_apply, np.asarray(manifold_open, dtype=bool).reshape(-1))
         self._command_valves(t_apply, applied / 1000.0)
@@ -278,10 +285,11 @@ class Plant:
         t_r = self.profile.t_r_s
         tol = CONTINUITY_TOL_S
         c_from, c_until, tokens = self._cmd_from, self._cmd_until, self._cmd_tokens
+        t_lo = t - tol
         for j, tau in enumerate(tau_s.tolist()):
-            same_time = abs(c_from[j] - t) <= tol
-            if tau <= 0 and not same_time and c_until[j] < t - tol:
+            if tau <= 0 and c_until[j] < t_lo and (c_from[j] < t_lo or abs(c_from[j] - t) > tol):
                 continue  # off before and off now: nothing to change (the common case)
+            same_time = abs(c_from[j] - t) <= tol
             # Commanded state just before t (a repeated command at the same time replaces the
             # previous one and sees the state before it).
             if same_time:
@@ -289,13 +297,14 @@ class Plant:
             else:
                 was_on = c_from[j] < t and c_until[j] >= t - tol
             # This command supersedes every scheduled change from t on.
-            keep = []
-            for tok in tokens[j]:
-                if tok[1] >= t + t_r - tol:
-                    tok[0] = False
-                elif tok[0]:
-                    keep.append(tok)
-            tokens[j] = keep
+            if tokens[j]:
+                keep = []
+                for tok in tokens[j]:
+                    if tok[1] >= t + t_r - tol:
+                        tok[0] = False
+                    elif tok[0]:
+                        keep.append(tok)
+                tokens[j] = keep
             if tau > 0:
                 if not was_on:
                     self._push_cmd(j, t + t_r, True)
@@ -312,7 +321,8 @@ class Plant:
     def _push_cmd(self, j: int, t_eff: float, on: bool) -> None:
         tok = [True, t_eff]
         self._cmd_tokens[j].append(tok)
-        self._push(t_eff, _EV_CMD, j, int(on), tok)
+        heapq.heappush(self._events, (t_eff, _EV_CMD, self._ev_seq, j, int(on), tok))
+        self._ev_seq += 1
 
     def _push(self, t: float, kind: int, idx: int, val: int, tok: list | None = None) -> None:
         heapq.heappush(self._events, (t, kind, self._ev_seq, idx, val, tok or [True, t]))
@@ -345,8 +355,10 @@ class Plant:
     # ------------------------------------------------------------------ events
 
     def _target(self, j: int, t: float) -> float:
-        if not self._man_eff[self.arrays.manifold_of[j]]:
+        if not self._man_eff[self._manifold_of[j]]:
             return 0.0
+        if not self.faults.entries:  # no faults: gain 1, nothing stuck
+            return 1.0 if self._cmd_eff[j] else 0.0
         gain, stuck = self.faults.thruster_state(j, t)
         return max(gain if self._cmd_eff[j] else 0.0, stuck)
 
@@ -358,13 +370,14 @@ class Plant:
             t, kind, _, idx, val, tok = heapq.heappop(ev)
             if not tok[0]:
                 continue
+            tok[0] = False  # done: a later command has nothing to cancel here (and drops it)
             if kind == _EV_CMD:
-                self._cmd_eff[idx] = bool(val)
+                self._cmd_eff[idx] = val == 1
                 self.bank.set_target(idx, t, self._target(idx, t))
             elif kind == _EV_MAN:
                 self._man_eff[idx] = bool(val)
-                for j in np.flatnonzero(self.arrays.manifold_of == idx):
-                    self.bank.set_target(int(j), t, self._target(int(j), t))
+                for j in np.flatnonzero(self.arrays.manifold_of == idx).tolist():
+                    self.bank.set_target(j, t, self._target(j, t))
             elif kind == _EV_FAULT:
                 self.bank.set_target(idx, t, self._target(idx, t))
             else:
@@ -407,93 +420,112 @@ class Plant:
         self._samples.extend(new)
         return new
 
-    def _grid(self, t0: float, t1: float) -> np.ndarray:
+    def _grid(self, t0: float, t1: float) -> list[float]:
+        """Step boundaries of ``[t0, t1]``: the ends and the global grid points between."""
         h = self.step_s
         k0 = math.floor(t0 / h + 1e-6) + 1
         k1 = math.ceil(t1 / h - 1e-6) - 1
-        inner = np.arange(k0, k1 + 1) * h if k1 >= k0 else np.empty(0)
-        return np.concatenate(([t0], inner, [t1]))
+        return [t0, *[k * h for k in range(k0, k1 + 1)], t1]
 
     def _integrate_chunk(self, t0: float, t1: float) -> None:
+        """Integrate ``[t0, t1]`` (no event inside) on the step grid: the exact mean thrust of
+        every step from one vectorised call, then the sequential part with the state in local
+        floats (RK4 ``body.advance``, flex transition, delta-v, gyro angle)."""
         self.bank.start_chunk(t0)
         self._process_events(t1, marks=False)
-        grid = self._grid(t0, t1)
-        dts = np.diff(grid)
-        per_step, per_thr = self.bank.impulse_on_grid(grid, self._weights)
-        mean = per_step / dts[:, None]  # exact mean force (3), torque (3), modal forcing (n)
-        imp = per_thr * self.thrust_actual_n
-        self.impulse_Ns += imp
-        self.fuel_kg += imp / (self.isp_s * G0_M_S2)
-        torque = mean[:, 3:6] + self._dist_const
+        grid_l = self._grid(t0, t1)
+        n_steps = len(grid_l) - 1
+        dts_l = [grid_l[k + 1] - grid_l[k] for k in range(n_steps)]
+        impulse = self.bank.impulse_on_grid(grid_l, self._weights)
+        if impulse is None:  # no thrust at all in the chunk: every mean is an exact zero
+            torque_l = [self._dist_const_l] * n_steps
+            force_l = [_ZERO3] * n_steps
+            flex_l = [self._zero_modes] * n_steps
+        else:
+            per_step, per_thr = impulse
+            mean = per_step / np.array(dts_l)[:, None]  # exact mean force, torque, modal forcing
+            imp = per_thr * self.thrust_actual_n
+            self.impulse_Ns += imp
+            self.fuel_kg += imp / self._isp_g0
+            torque_l = (mean[:, 3:6] + self._dist_const).tolist()
+            force_l = mean[:, 0:3].tolist()
+            flex_l = mean[:, 6:].tolist()
         if self._dist_std > 0:
-            torque = torque + self._rng_dist.standard_normal(torque.shape) * self._dist_std
-        torque_l = torque.tolist()
-        force_l = mean[:, 0:3].tolist()
-        flex_l = mean[:, 6:].tolist()
+            noise = self._rng_dist.standard_normal((n_steps, 3)) * self._dist_std
+            torque_l = (np.array(torque_l) + noise).tolist()
         body, flex = self.body, self.flex
-        flex_n = flex.n
         fq, fqd = flex.q, flex.qd
-        h_common = self.step_s
-        mats_common = flex._mats(h_common) if flex_n else []
+        if flex.n:
+            h_common = self.step_s
+            mats_common = flex.flat_mats(h_common)
+            mats_l = [mats_common if abs(h - h_common) < 1e-12 else flex.flat_mats(h)
+                      for h in dts_l]
+        else:
+            mats_l = [()] * n_steps
         w0 = body.w0
         inv_m = 1.0 / self.arrays.mass_kg
-        step = body.step
-        th = self._theta_rigid
+        advance = body.advance
+        cos, sin = math.cos, math.sin
+        q0, q1, q2, q3 = body.q
+        w1, w2, w3 = body.w
+        dvb0, dvb1, dvb2 = self.dv_B
+        dvo0, dvo1, dvo2 = self.dv_O
         tw0 = tw1 = tw2 = 0.0
-        grid_l = grid.tolist()
-        for k, h in enumerate(dts.tolist()):
-            t = grid_l[k]
-            wa0, wa1, wa2 = body.w
-            q_a = body.q
-            step(t, h, torque_l[k])
-            wb = body.w
+        # Step k starts at grid_l[k] (the grid has one more point: the end of the chunk).
+        for t, h, (mx, my, mz), (fx, fy, fz), u, mats in zip(
+                grid_l, dts_l, torque_l, force_l, flex_l, mats_l, strict=False):
+            n0, n1, n2, n3, v1, v2, v3 = advance(t, h, mx, my, mz, q0, q1, q2, q3, w1, w2, w3)
             hh = 0.5 * h
-            tw0 += hh * (wa0 + wb[0])
-            tw1 += hh * (wa1 + wb[1])
-            tw2 += hh * (wa2 + wb[2])
-            if flex_n:
-                mats = mats_common if abs(h - h_common) < 1e-12 else flex._mats(h)
-                u = flex_l[k]
-                for i in range(flex_n):
-                    (p11, p12, p21, p22), (g1, g2) = mats[i]
-                    a, b = fq[i], fqd[i]
-                    fq[i] = p11 * a + p12 * b + g1 * u[i]
-                    fqd[i] = p21 * a + p22 * b + g2 * u[i]
-            f = force_l[k]
-            if f[0] != 0.0 or f[1] != 0.0 or f[2] != 0.0:
-                self._add_dv(t + hh, h, f, inv_m, q_a, body.q, w0)
-        tw = (tw0, tw1, tw2)
-        th += tw
-        self.counters["steps"] += len(dts)
-
-    def _add_dv(self, t_mid: float, h: float, f_B: list[float], inv_m: float,
-                q_a: list[float], q_b: list[float], w0: float) -> None:
-        s = inv_m * h
-        a1, a2, a3 = f_B[0] * s, f_B[1] * s, f_B[2] * s
-        dv = self.dv_B
-        dv[0] += a1
-        dv[1] += a2
-        dv[2] += a3
-        # Mid-step attitude: normalised mean of the end quaternions (steps are small).
-        w, x, y, z = (q_a[0] + q_b[0], q_a[1] + q_b[1], q_a[2] + q_b[2], q_a[3] + q_b[3])
-        n2 = w * w + x * x + y * y + z * z
-        k = 2.0 / n2
-        v1 = (1 - k * (y * y + z * z)) * a1 + k * (x * y - w * z) * a2 + k * (x * z + w * y) * a3
-        v2 = k * (x * y + w * z) * a1 + (1 - k * (x * x + z * z)) * a2 + k * (y * z - w * x) * a3
-        v3 = k * (x * z - w * y) * a1 + k * (y * z + w * x) * a2 + (1 - k * (x * x + y * y)) * a3
-        c, sn = math.cos(w0 * t_mid), math.sin(w0 * t_mid)
-        # Rows of C_OI are x', y', z' in inertial axes (plant.dynamics module doc).
-        dvo = self.dv_O
-        dvo[0] += c * v1 - sn * v2
-        dvo[1] += sn * v1 + c * v2
-        dvo[2] += v3
+            tw0 += hh * (w1 + v1)
+            tw1 += hh * (w2 + v2)
+            tw2 += hh * (w3 + v3)
+            i = 0
+            for p11, p12, p21, p22, g1, g2 in mats:  # flex modes: exact transition
+                a, b, ui = fq[i], fqd[i], u[i]
+                fq[i] = p11 * a + p12 * b + g1 * ui
+                fqd[i] = p21 * a + p22 * b + g2 * ui
+                i += 1
+            if fx != 0.0 or fy != 0.0 or fz != 0.0:
+                # Delta-v: body axes, and the orbit frame with the mid-step attitude (the
+                # normalised mean of the end quaternions; steps are small).
+                sm = inv_m * h
+                a1, a2, a3 = fx * sm, fy * sm, fz * sm
+                dvb0 += a1
+                dvb1 += a2
+                dvb2 += a3
+                w, x, y, z = q0 + n0, q1 + n1, q2 + n2, q3 + n3
+                kq = 2.0 / (w * w + x * x + y * y + z * z)
+                u1 = ((1.0 - kq * (y * y + z * z)) * a1 + kq * (x * y - w * z) * a2
+                      + kq * (x * z + w * y) * a3)
+                u2 = (kq * (x * y + w * z) * a1 + (1.0 - kq * (x * x + z * z)) * a2
+                      + kq * (y * z - w * x) * a3)
+                u3 = (kq * (x * z - w * y) * a1 + kq * (y * z + w * x) * a2
+                      + (1.0 - kq * (x * x + y * y)) * a3)
+                th = w0 * (t + hh)
+                c, sn = cos(th), sin(th)
+                # Rows of C_OI are x', y', z' in inertial axes (plant.dynamics module doc).
+                dvo0 += c * u1 - sn * u2
+                dvo1 += sn * u1 + c * u2
+                dvo2 += u3
+            q0, q1, q2, q3, w1, w2, w3 = n0, n1, n2, n3, v1, v2, v3
+        body.q = [q0, q1, q2, q3]
+        body.w = [w1, w2, w3]
+        self.dv_B = [dvb0, dvb1, dvb2]
+        self.dv_O = [dvo0, dvo1, dvo2]
+        th = self._theta_rigid
+        th[0] += tw0
+        th[1] += tw1
+        th[2] += tw2
+        self.counters["steps"] += n_steps
 
     def _take_sample(self) -> GyroSample:
         t = self.gyro.sample_time(self._next_sample_k)
         self._next_sample_k += 1
-        s = self.gyro.measure(t, self.body.w_B_rad_s, self.flex.gyro_rate_B(),
-                              self._theta_rigid.copy(), self.flex.gyro_angle_B(), self.faults)
-        self._theta_rigid[:] = 0.0
+        flex = self.flex
+        angle = flex.gyro_angle_B().tolist() if self._gyro_integrating else _ZERO3
+        s = self.gyro.measure(t, self.body.w, flex.gyro_rate_B().tolist(), self._theta_rigid,
+                              angle, self.faults)
+        self._theta_rigid = [0.0, 0.0, 0.0]
         return s
 
     # ------------------------------------------------------------------ outputs

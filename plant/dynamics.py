@@ -96,6 +96,9 @@ class RigidBody:
         self.h0 = [float(v) for v in h0]
         self.hd = [float(v) for v in hd]
         self._f = self._make_deriv()
+        # ``advance(t, h, mx, my, mz, q0, q1, q2, q3, w1, w2, w3) -> (q0, .., w3)``: one RK4
+        # step on plain floats. Without a CMG momentum rate it is one inlined closure.
+        self.advance = self._make_advance() if not any(self.hd) else self._advance_stages
 
     def h_cmg(self, t_s: float) -> np.ndarray:
         return np.array(self.h0) + np.array(self.hd) * t_s
@@ -148,11 +151,157 @@ class RigidBody:
 
         return f
 
+    def _make_advance(self):
+        """One RK4 step as a single closure over the constants, state in and out as floats:
+        ``advance(t, h, m1, m2, m3, q0, q1, q2, q3, w1, w2, w3) -> (q0, q1, q2, q3, w1, w2, w3)``.
+
+        The four stages of ``_make_deriv``'s derivative inlined with the same floating-point
+        operations (so the results are the same floats, bit for bit): the constant CMG momentum
+        ``h0`` (``dH/dt = 0``: the ``hd`` terms are exact zeros and are left out), the orbit
+        angle's sine and cosine computed once for the two mid-step stages, repeated products
+        computed once, and ``2 (x) v`` taken as ``x (2 v)`` (doubling is exact).
+        """
+        (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = self._Jt
+        (i00, i01, i02), (i10, i11, i12), (i20, i21, i22) = self._Jit
+        h01, h02, h03 = self.h0
+        gg, w0 = self.gg, self.w0
+        g = 3.0 * w0 * w0
+        sin, cos, sqrt = math.sin, math.cos, math.sqrt
+
+        def advance(t, h, mx, my, mz, q0, q1, q2, q3, w1, w2, w3):
+            hh = 0.5 * h
+            # -- stage a at (t, x)
+            L1 = j00 * w1 + j01 * w2 + j02 * w3 + h01
+            L2 = j10 * w1 + j11 * w2 + j12 * w3 + h02
+            L3 = j20 * w1 + j21 * w2 + j22 * w3 + h03
+            m1 = mx - (w2 * L3 - w3 * L2)
+            m2 = my - (w3 * L1 - w1 * L3)
+            m3 = mz - (w1 * L2 - w2 * L1)
+            if gg:
+                th = w0 * t
+                vx, vy = sin(th), cos(th)
+                vx2, vy2 = 2.0 * vx, 2.0 * vy
+                s33, s12, s03 = q3 * q3, q1 * q2, q0 * q3
+                a1 = (1.0 - 2.0 * (q2 * q2 + s33)) * vx + (s12 + s03) * vy2
+                a2 = (s12 - s03) * vx2 + (1.0 - 2.0 * (q1 * q1 + s33)) * vy
+                a3 = (q1 * q3 + q0 * q2) * vx2 + (q2 * q3 - q0 * q1) * vy2
+                b1 = j00 * a1 + j01 * a2 + j02 * a3
+                b2 = j10 * a1 + j11 * a2 + j12 * a3
+                b3 = j20 * a1 + j21 * a2 + j22 * a3
+                m1 += g * (a2 * b3 - a3 * b2)
+                m2 += g * (a3 * b1 - a1 * b3)
+                m3 += g * (a1 * b2 - a2 * b1)
+            aw1 = i00 * m1 + i01 * m2 + i02 * m3
+            aw2 = i10 * m1 + i11 * m2 + i12 * m3
+            aw3 = i20 * m1 + i21 * m2 + i22 * m3
+            aq0 = 0.5 * (-q1 * w1 - q2 * w2 - q3 * w3)
+            aq1 = 0.5 * (q0 * w1 + q2 * w3 - q3 * w2)
+            aq2 = 0.5 * (q0 * w2 - q1 * w3 + q3 * w1)
+            aq3 = 0.5 * (q0 * w3 + q1 * w2 - q2 * w1)
+            # -- stage b at (t + h/2, x + h/2 a)
+            p0, p1, p2, p3 = q0 + hh * aq0, q1 + hh * aq1, q2 + hh * aq2, q3 + hh * aq3
+            v1, v2, v3 = w1 + hh * aw1, w2 + hh * aw2, w3 + hh * aw3
+            L1 = j00 * v1 + j01 * v2 + j02 * v3 + h01
+            L2 = j10 * v1 + j11 * v2 + j12 * v3 + h02
+            L3 = j20 * v1 + j21 * v2 + j22 * v3 + h03
+            m1 = mx - (v2 * L3 - v3 * L2)
+            m2 = my - (v3 * L1 - v1 * L3)
+            m3 = mz - (v1 * L2 - v2 * L1)
+            if gg:
+                th = w0 * (t + hh)
+                cx, cy = sin(th), cos(th)  # also the next stage's
+                cx2, cy2 = 2.0 * cx, 2.0 * cy
+                s33, s12, s03 = p3 * p3, p1 * p2, p0 * p3
+                a1 = (1.0 - 2.0 * (p2 * p2 + s33)) * cx + (s12 + s03) * cy2
+                a2 = (s12 - s03) * cx2 + (1.0 - 2.0 * (p1 * p1 + s33)) * cy
+                a3 = (p1 * p3 + p0 * p2) * cx2 + (p2 * p3 - p0 * p1) * cy2
+                b1 = j00 * a1 + j01 * a2 + j02 * a3
+                b2 = j10 * a1 + j11 * a2 + j12 * a3
+                b3 = j20 * a1 + j21 * a2 + j22 * a3
+                m1 += g * (a2 * b3 - a3 * b2)
+                m2 += g * (a3 * b1 - a1 * b3)
+                m3 += g * (a1 * b2 - a2 * b1)
+            bw1 = i00 * m1 + i01 * m2 + i02 * m3
+            bw2 = i10 * m1 + i11 * m2 + i12 * m3
+            bw3 = i20 * m1 + i21 * m2 + i22 * m3
+            bq0 = 0.5 * (-p1 * v1 - p2 * v2 - p3 * v3)
+            bq1 = 0.5 * (p0 * v1 + p2 * v3 - p3 * v2)
+            bq2 = 0.5 * (p0 * v2 - p1 * v3 + p3 * v1)
+            bq3 = 0.5 * (p0 * v3 + p1 * v2 - p2 * v1)
+            # -- stage c at (t + h/2, x + h/2 b)
+            p0, p1, p2, p3 = q0 + hh * bq0, q1 + hh * bq1, q2 + hh * bq2, q3 + hh * bq3
+            v1, v2, v3 = w1 + hh * bw1, w2 + hh * bw2, w3 + hh * bw3
+            L1 = j00 * v1 + j01 * v2 + j02 * v3 + h01
+            L2 = j10 * v1 + j11 * v2 + j12 * v3 + h02
+            L3 = j20 * v1 + j21 * v2 + j22 * v3 + h03
+            m1 = mx - (v2 * L3 - v3 * L2)
+            m2 = my - (v3 * L1 - v1 * L3)
+            m3 = mz - (v1 * L2 - v2 * L1)
+            if gg:
+                s33, s12, s03 = p3 * p3, p1 * p2, p0 * p3
+                a1 = (1.0 - 2.0 * (p2 * p2 + s33)) * cx + (s12 + s03) * cy2
+                a2 = (s12 - s03) * cx2 + (1.0 - 2.0 * (p1 * p1 + s33)) * cy
+                a3 = (p1 * p3 + p0 * p2) * cx2 + (p2 * p3 - p0 * p1) * cy2
+                b1 = j00 * a1 + j01 * a2 + j02 * a3
+                b2 = j10 * a1 + j11 * a2 + j12 * a3
+                b3 = j20 * a1 + j21 * a2 + j22 * a3
+                m1 += g * (a2 * b3 - a3 * b2)
+                m2 += g * (a3 * b1 - a1 * b3)
+                m3 += g * (a1 * b2 - a2 * b1)
+            cw1 = i00 * m1 + i01 * m2 + i02 * m3
+            cw2 = i10 * m1 + i11 * m2 + i12 * m3
+            cw3 = i20 * m1 + i21 * m2 + i22 * m3
+            cq0 = 0.5 * (-p1 * v1 - p2 * v2 - p3 * v3)
+            cq1 = 0.5 * (p0 * v1 + p2 * v3 - p3 * v2)
+            cq2 = 0.5 * (p0 * v2 - p1 * v3 + p3 * v1)
+            cq3 = 0.5 * (p0 * v3 + p1 * v2 - p2 * v1)
+            # -- stage e at (t + h, x + h c)
+            p0, p1, p2, p3 = q0 + h * cq0, q1 + h * cq1, q2 + h * cq2, q3 + h * cq3
+            v1, v2, v3 = w1 + h * cw1, w2 + h * cw2, w3 + h * cw3
+            L1 = j00 * v1 + j01 * v2 + j02 * v3 + h01
+            L2 = j10 * v1 + j11 * v2 + j12 * v3 + h02
+            L3 = j20 * v1 + j21 * v2 + j22 * v3 + h03
+            m1 = mx - (v2 * L3 - v3 * L2)
+            m2 = my - (v3 * L1 - v1 * L3)
+            m3 = mz - (v1 * L2 - v2 * L1)
+            if gg:
+                th = w0 * (t + h)
+                vx, vy = sin(th), cos(th)
+                vx2, vy2 = 2.0 * vx, 2.0 * vy
+                s33, s12, s03 = p3 * p3, p1 * p2, p0 * p3
+                a1 = (1.0 - 2.0 * (p2 * p2 + s33)) * vx + (s12 + s03) * vy2
+                a2 = (s12 - s03) * vx2 + (1.0 - 2.0 * (p1 * p1 + s33)) * vy
+                a3 = (p1 * p3 + p0 * p2) * vx2 + (p2 * p3 - p0 * p1) * vy2
+                b1 = j00 * a1 + j01 * a2 + j02 * a3
+                b2 = j10 * a1 + j11 * a2 + j12 * a3
+                b3 = j20 * a1 + j21 * a2 + j22 * a3
+                m1 += g * (a2 * b3 - a3 * b2)
+                m2 += g * (a3 * b1 - a1 * b3)
+                m3 += g * (a1 * b2 - a2 * b1)
+            s = h / 6.0
+            w1 += s * (aw1 + 2.0 * (bw1 + cw1) + (i00 * m1 + i01 * m2 + i02 * m3))
+            w2 += s * (aw2 + 2.0 * (bw2 + cw2) + (i10 * m1 + i11 * m2 + i12 * m3))
+            w3 += s * (aw3 + 2.0 * (bw3 + cw3) + (i20 * m1 + i21 * m2 + i22 * m3))
+            q0 += s * (aq0 + 2.0 * (bq0 + cq0) + 0.5 * (-p1 * v1 - p2 * v2 - p3 * v3))
+            q1 += s * (aq1 + 2.0 * (bq1 + cq1) + 0.5 * (p0 * v1 + p2 * v3 - p3 * v2))
+            q2 += s * (aq2 + 2.0 * (bq2 + cq2) + 0.5 * (p0 * v2 - p1 * v3 + p3 * v1))
+            q3 += s * (aq3 + 2.0 * (bq3 + cq3) + 0.5 * (p0 * v3 + p1 * v2 - p2 * v1))
+            inv = 1.0 / sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+            return q0 * inv, q1 * inv, q2 * inv, q3 * inv, w1, w2, w3
+
+        return advance
+
     def step(self, t_s: float, h_s: float, torque_B_Nm: list[float]) -> None:
         """One RK4 step of length ``h_s`` from ``t_s`` with a constant external torque."""
-        d, m = self._f, torque_B_Nm
-        q0, q1, q2, q3 = self.q
-        w1, w2, w3 = self.w
+        q0, q1, q2, q3, w1, w2, w3 = self.advance(t_s, h_s, *torque_B_Nm, *self.q, *self.w)
+        self.q = [q0, q1, q2, q3]
+        self.w = [w1, w2, w3]
+
+    def _advance_stages(self, t_s: float, h_s: float, mx: float, my: float, mz: float,
+                        q0: float, q1: float, q2: float, q3: float, w1: float, w2: float,
+                        w3: float) -> tuple[float, ...]:
+        """``advance`` through ``_deriv``'s four stages (any CMG momentum rate)."""
+        d, m = self._f, (mx, my, mz)
         hh = 0.5 * h_s
         th = t_s + hh
         a = d(t_s, q0, q1, q2, q3, w1, w2, w3, m)
@@ -163,15 +312,15 @@ class RigidBody:
         e = d(t_s + h_s, q0 + h_s * c[3], q1 + h_s * c[4], q2 + h_s * c[5], q3 + h_s * c[6],
               w1 + h_s * c[0], w2 + h_s * c[1], w3 + h_s * c[2], m)
         s = h_s / 6.0
-        self.w = [w1 + s * (a[0] + 2.0 * (b[0] + c[0]) + e[0]),
-                  w2 + s * (a[1] + 2.0 * (b[1] + c[1]) + e[1]),
-                  w3 + s * (a[2] + 2.0 * (b[2] + c[2]) + e[2])]
+        w1 += s * (a[0] + 2.0 * (b[0] + c[0]) + e[0])
+        w2 += s * (a[1] + 2.0 * (b[1] + c[1]) + e[1])
+        w3 += s * (a[2] + 2.0 * (b[2] + c[2]) + e[2])
         q0 += s * (a[3] + 2.0 * (b[3] + c[3]) + e[3])
         q1 += s * (a[4] + 2.0 * (b[4] + c[4]) + e[4])
         q2 += s * (a[5] + 2.0 * (b[5] + c[5]) + e[5])
         q3 += s * (a[6] + 2.0 * (b[6] + c[6]) + e[6])
         inv = 1.0 / math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-        self.q = [q0 * inv, q1 * inv, q2 * inv, q3 * inv]
+        return q0 * inv, q1 * inv, q2 * inv, q3 * inv, w1, w2, w3
 
     # -- derived quantities (numpy) ---------------------------------------------------------
 

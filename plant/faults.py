@@ -94,6 +94,8 @@ class FaultState:
         self.names = [t.name for t in vehicle.thrusters]
         self.entries: list[FaultEntry] = []
         self._next_id = 0
+        # False until a gyro fault is injected: the sensor then skips the fault queries.
+        self.has_gyro_faults = False
 
     def inject(self, fault: FaultSpec | Mapping[str, Any], t_now_s: float = 0.0) -> FaultEntry:
         """Validate and add ``fault``; a start time in the past becomes ``t_now_s``."""
@@ -103,6 +105,8 @@ class FaultState:
         entry = FaultEntry(self._next_id, spec, t_on, t_off)
         self._next_id += 1
         self.entries.append(entry)
+        if spec.kind in GYRO_FAULTS:
+            self.has_gyro_faults = True
         return entry
 
     def clear(self, t_s: float, thruster: str | None = None) -> list[FaultEntry]:
@@ -132,8 +136,10 @@ class FaultState:
         ``on_gain``: normalised thrust when commanded on (1 nominal, d degraded, 0 fail to
         fire; the smallest wins). ``stuck_fraction``: thrust when commanded off (0 nominal).
         """
-        name = self.names[j]
         gain, stuck = 1.0, 0.0
+        if not self.entries:
+            return gain, stuck
+        name = self.names[j]
         for e in self.entries:
             if e.spec.thruster != name or not e.active(t_s):
                 continue

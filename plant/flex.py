@@ -78,13 +78,23 @@ class FlexModes:
         self.gyro_phi = np.array([m.gyro_phi for m in self.modes], dtype=float).reshape(self.n, 3)
         self.q = [0.0] * self.n
         self.qd = [0.0] * self.n
-        self._cache: dict[float, list[tuple[tuple[float, ...], tuple[float, float]]]] = {}
+        # Step length -> (per mode ``(Phi, Gamma)``, the same flattened to 6-tuples).
+        self._cache: dict[float, tuple[list, tuple]] = {}
 
     def _mats(self, h_s: float) -> list[tuple[tuple[float, ...], tuple[float, float]]]:
+        return self._entry(h_s)[0]
+
+    def flat_mats(self, h_s: float) -> tuple[tuple[float, float, float, float, float, float], ...]:
+        """``_mats(h_s)`` flattened per mode: ``(p11, p12, p21, p22, g1, g2)``."""
+        return self._entry(h_s)[1]
+
+    def _entry(self, h_s: float) -> tuple[list, tuple]:
+        """Both forms of the transitions for a step of ``h_s`` (cached by step length)."""
         key = round(h_s, 12)
         m = self._cache.get(key)
         if m is None:
-            m = [transition(md.freq_hz, md.log_decrement, h_s) for md in self.modes]
+            mats = [transition(md.freq_hz, md.log_decrement, h_s) for md in self.modes]
+            m = (mats, tuple((*phi, *gam) for phi, gam in mats))
             if len(self._cache) > 64:  # odd step lengths (sample times): keep the cache small
                 self._cache.clear()
             self._cache[key] = m

@@ -29,6 +29,8 @@ spawned from the plant seed, so one stream's use never shifts another's.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -59,68 +61,96 @@ class GyroSample:
 
 
 class Gyro:
-    """Sensor model; ``measure`` is called by the plant at each sample time in order."""
+    """Sensor model; ``measure`` is called by the plant at each sample time in order.
+
+    The 3-vector arithmetic is on plain floats (numpy calls cost more than they compute for
+    three numbers); each component sees the same operations, in the same order, as the
+    vector formulas of the module doc.
+    """
 
     def __init__(self, cfg: GyroCfg, rngs: tuple[np.random.Generator, ...]) -> None:
         self.cfg = cfg
         self.period_s = 1.0 / cfg.rate_hz
         self.latency_s = cfg.latency_ms / 1000.0
         self._rng_noise, self._rng_walk, self._rng_fault = rngs
-        self.walk = np.zeros(3)
+        self.walk = [0.0, 0.0, 0.0]
         self.seq = 0
-        self._last_rate = np.zeros(3)
-        self._last_delta = np.zeros(3)
+        self._last_rate = [0.0, 0.0, 0.0]
         self._last_t: float | None = None
-        self._theta_true = np.zeros(3)  # running angle incl. bias, before noise/quantisation
-        self._count_prev = np.zeros(3)
-        self._counting_frozen = False
+        self._theta_true = [0.0, 0.0, 0.0]  # running angle incl. bias, before noise/quantisation
+        self._count_prev = [0.0, 0.0, 0.0]
+        self._bias = [float(b) for b in cfg.bias_rad_s]
 
     def sample_time(self, k: int) -> float:
         return k * self.period_s
 
-    def measure(self, t_s: float, w_B_rad_s: np.ndarray, flex_rate_B: np.ndarray,
-                d_theta_rigid_B: np.ndarray, flex_angle_B: np.ndarray, faults: FaultState
-                ) -> GyroSample:
+    def measure(self, t_s: float, w_B_rad_s: Sequence[float], flex_rate_B: Sequence[float],
+                d_theta_rigid_B: Sequence[float], flex_angle_B: Sequence[float],
+                faults: FaultState) -> GyroSample:
         """The sample measured at ``t_s``.
 
-        ``d_theta_rigid_B`` (3,) is ``int w_B dt`` since the previous sample and
-        ``flex_angle_B`` (3,) the current ``sum phi_i q_i`` (integrating gyro only).
+        ``w_B_rad_s`` (3,) true rate and ``flex_rate_B`` (3,) the flex part; ``d_theta_rigid_B``
+        (3,) is ``int w_B dt`` since the previous sample and ``flex_angle_B`` (3,) the current
+        ``sum phi_i q_i`` (integrating gyro only: a rate gyro ignores both). Any sequences of
+        three numbers.
         """
         cfg = self.cfg
-        dt = self.period_s if self._last_t is None else t_s - self._last_t
+        first = self._last_t is None
+        dt = self.period_s if first else t_s - self._last_t
         # Draw every stream every sample so the sequences do not depend on the configuration.
-        noise = self._rng_noise.standard_normal(3)
-        walk_step = self._rng_walk.standard_normal(3)
-        extra = self._rng_fault.standard_normal(3)
-        if cfg.bias_walk_rad_s_sqrt_s > 0 and self._last_t is not None:
-            self.walk = self.walk + walk_step * cfg.bias_walk_rad_s_sqrt_s * np.sqrt(dt)
-        bias = np.asarray(cfg.bias_rad_s) + self.walk + faults.gyro_bias_step(t_s)
-        noise_rate = noise * cfg.noise_std_rad_s + extra * faults.gyro_extra_noise(t_s)
-        spike = faults.take_gyro_spike(t_s)
-        frozen = faults.gyro_frozen(t_s)
+        n0, n1, n2 = self._rng_noise.standard_normal(3).tolist()
+        walk_step = self._rng_walk.standard_normal(3).tolist()
+        x0, x1, x2 = self._rng_fault.standard_normal(3).tolist()
+        walk = self.walk
+        bw = cfg.bias_walk_rad_s_sqrt_s
+        if bw > 0 and not first:
+            sq = math.sqrt(dt)
+            walk = self.walk = [walk[i] + walk_step[i] * bw * sq for i in range(3)]
+        cb = self._bias
+        sd = cfg.noise_std_rad_s
+        if faults.has_gyro_faults:
+            bs = faults.gyro_bias_step(t_s).tolist()
+            xs = faults.gyro_extra_noise(t_s).tolist()
+            b0, b1, b2 = cb[0] + walk[0] + bs[0], cb[1] + walk[1] + bs[1], cb[2] + walk[2] + bs[2]
+            r0, r1, r2 = n0 * sd + x0 * xs[0], n1 * sd + x1 * xs[1], n2 * sd + x2 * xs[2]
+            s0, s1, s2 = faults.take_gyro_spike(t_s).tolist()
+            frozen = faults.gyro_frozen(t_s)
+        else:  # the fault terms are exact zeros
+            b0, b1, b2 = cb[0] + walk[0], cb[1] + walk[1], cb[2] + walk[2]
+            r0, r1, r2 = n0 * sd, n1 * sd, n2 * sd
+            s0 = s1 = s2 = 0.0
+            frozen = False
         status = GyroStatus.OK
-        delta: np.ndarray | None = None
+        delta: tuple[float, float, float] | None = None
         if cfg.kind == "rate":
-            rate = w_B_rad_s + flex_rate_B + bias + noise_rate + spike
+            w, f = w_B_rad_s, flex_rate_B
+            rate = (w[0] + f[0] + b0 + r0 + s0, w[1] + f[1] + b1 + r1 + s1,
+                    w[2] + f[2] + b2 + r2 + s2)
             if cfg.quantum_rad_s > 0:
-                rate = np.round(rate / cfg.quantum_rad_s) * cfg.quantum_rad_s
+                qr = cfg.quantum_rad_s
+                rate = tuple((np.round(np.array(rate) / qr) * qr).tolist())
             if frozen:
                 rate = self._last_rate
         else:
-            first = self._last_t is None
+            th = self._theta_true
             if not first:
-                self._theta_true = self._theta_true + d_theta_rigid_B + (bias + noise_rate) * dt
+                d = d_theta_rigid_B
+                th = self._theta_true = [th[0] + d[0] + (b0 + r0) * dt,
+                                         th[1] + d[1] + (b1 + r1) * dt,
+                                         th[2] + d[2] + (b2 + r2) * dt]
             # A spike is one bad reading of the counter: the next increment takes it back.
-            total = self._theta_true + flex_angle_B + spike * self.period_s
-            q_ang = cfg.quantum_rad_s * self.period_s
-            count = np.round(total / q_ang) * q_ang if q_ang > 0 else total
-            delta = count - self._count_prev
+            fa, per = flex_angle_B, self.period_s
+            total = (th[0] + fa[0] + s0 * per, th[1] + fa[1] + s1 * per, th[2] + fa[2] + s2 * per)
+            q_ang = cfg.quantum_rad_s * per
+            count = (np.round(np.array(total) / q_ang) * q_ang).tolist() if q_ang > 0 else total
+            cp = self._count_prev
+            delta = (count[0] - cp[0], count[1] - cp[1], count[2] - cp[2])
             self._count_prev = count
             if frozen:
-                delta = np.zeros(3)
+                delta = (0.0, 0.0, 0.0)
             if first:
                 status = GyroStatus.NO_DATA
-            rate = delta / dt if dt > 0 else np.zeros(3)
+            rate = (delta[0] / dt, delta[1] / dt, delta[2] / dt) if dt > 0 else (0.0, 0.0, 0.0)
         self._last_rate = rate
         self._last_t = t_s
         s = GyroSample(

@@ -37,6 +37,7 @@ form, so the integrator gets the exact impulse of every step whatever its length
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -147,17 +148,17 @@ def _e_scalar(k: float, n: float, x: float) -> float:
 
 
 def _e_vec(k: float, n: float, full: float, x: np.ndarray) -> np.ndarray:
-    """Vectorised ``_e_scalar`` for one ``(k, n)``; ``full = k^(-1/n) Gamma(1 + 1/n)``.
+    """Vectorised ``_e_scalar`` for one ``(k, n)`` and ``x >= 0`` (+inf allowed);
+    ``full = k^(-1/n) Gamma(1 + 1/n)``.
 
     The common exponents have cheaper closed forms: ``n = 1`` gives ``(1 - exp(-k x)) / k``
     and ``n = 2`` gives ``full * erf(sqrt(k) x)``.
     """
-    xp = np.maximum(x, 0.0)
     if n == 1.0:
-        return -np.expm1(-k * xp) / k
+        return np.expm1(-k * x) / -k  # = -expm1(-k x) / k exactly (rounding is odd)
     if n == 2.0:
-        return full * erf(math.sqrt(k) * xp)
-    return full * gammainc(1.0 / n, k * xp**n)
+        return full * erf(math.sqrt(k) * x)
+    return full * gammainc(1.0 / n, k * x**n)
 
 
 # --------------------------------------------------------------------------- commands
@@ -198,15 +199,28 @@ def clamp_on_ms(on_ms: np.ndarray, allowed: tuple[int, ...]) -> tuple[np.ndarray
 # --------------------------------------------------------------------------- valve timeline
 
 
-@dataclass
 class Segment:
-    """``level(t) = B + C exp(-k (t - t_origin)^n)`` from ``t_start_s`` (normalised thrust)."""
+    """``level(t) = B + C exp(-k (t - t_origin)^n)`` from ``t_start_s`` (normalised thrust).
 
-    t_start_s: float
-    t_origin_s: float
-    b: float
-    c: float
-    rise: bool  # True: k1, n1; False: k2, n2
+    Immutable by convention (a change of target makes a new segment). ``rise``: True for
+    ``k1, n1``, False for ``k2, n2``. ``row`` is ``(t_start_s, t_origin_s, b, c, rise as 0/1)``,
+    the segment's row in ``ThrusterBank.impulse_on_grid``.
+    """
+
+    __slots__ = ("t_start_s", "t_origin_s", "b", "c", "rise", "row")
+
+    def __init__(self, t_start_s: float, t_origin_s: float, b: float, c: float,
+                 rise: bool) -> None:
+        self.t_start_s = t_start_s
+        self.t_origin_s = t_origin_s
+        self.b = b
+        self.c = c
+        self.rise = rise
+        self.row = (t_start_s, t_origin_s, b, c, 1.0 if rise else 0.0)
+
+    def __repr__(self) -> str:
+        return (f"Segment(t_start_s={self.t_start_s!r}, t_origin_s={self.t_origin_s!r}, "
+                f"b={self.b!r}, c={self.c!r}, rise={self.rise!r})")
 
     def level(self, t_s: float, prof: ThrustProfile) -> float:
         if self.c == 0.0:
@@ -227,17 +241,23 @@ class ThrusterBank:
     Each thruster has a *target level* set by the discrete state (valve commanded open,
     manifold open, faults) and a current segment moving toward it (module doc). The owner
     calls ``set_target`` in time order; ``impulse_on_grid`` then integrates every segment
-    started since the last call in closed form.
+    started since the last call in closed form. Only the thrusters whose segment is not
+    identically zero (``_lit``) are visited; an idle one, or one at rest after a decay, costs
+    nothing.
     """
 
     def __init__(self, n: int, prof: ThrustProfile) -> None:
         self.n = n
         self.prof = prof
         self.current: list[Segment] = [Segment(0.0, 0.0, 0.0, 0.0, False) for _ in range(n)]
-        self.target = np.zeros(n)
+        self.target = [0.0] * n
         # Segments of the chunk being built: (thruster, Segment), in time order per thruster.
         self._pending: list[tuple[int, Segment]] = []
         self._chunk_start: list[Segment] = list(self.current)
+        # Thrusters whose current segment is not identically zero (b or c != 0), now and at
+        # the chunk start.
+        self._lit: set[int] = set()
+        self._lit_start: set[int] = set()
         self._full1 = prof.k1 ** (-1.0 / prof.n1) * float(_gamma(1.0 + 1.0 / prof.n1))
         self._full2 = prof.k2 ** (-1.0 / prof.n2) * float(_gamma(1.0 + 1.0 / prof.n2))
 
@@ -249,8 +269,9 @@ class ThrusterBank:
         if target == self.target[j]:
             return
         self.target[j] = target
-        a = self.current[j].level(t_s, self.prof)
         p = self.prof
+        cur = self.current[j]
+        a = cur.b if cur.c == 0.0 else cur.level(t_s, p)
         if target > a:
             # Rise along eq. 4.1 scaled to the target; shift the origin back to pass through a.
             x0 = 0.0 if a <= 0.0 else (-math.log1p(-a / target) / p.k1) ** (1.0 / p.n1)
@@ -260,64 +281,101 @@ class ThrusterBank:
         else:
             seg = Segment(t_s, t_s, target, 0.0, False)
         self.current[j] = seg
+        if seg.b != 0.0 or seg.c != 0.0:
+            self._lit.add(j)
+        else:
+            self._lit.discard(j)
         self._pending.append((j, seg))
 
     def start_chunk(self, t0_s: float) -> None:
         """Begin a chunk at ``t0_s``: remember the segments in force (call before the chunk's
         ``set_target`` calls). Segments at their target to double precision become constants."""
-        for j, seg in enumerate(self.current):
-            if seg.c != 0.0 and seg.saturated(t0_s, self.prof):
-                self.current[j] = Segment(seg.t_start_s, seg.t_origin_s, seg.b, 0.0, seg.rise)
-        self._chunk_start = list(self.current)
+        cur, p = self.current, self.prof
+        k1, n1, k2, n2 = p.k1, p.n1, p.k2, p.n2
+        for j in list(self._lit):
+            seg = cur[j]
+            if seg.c == 0.0:
+                continue
+            x = t0_s - seg.t_origin_s  # Segment.saturated, inline
+            if x > 0 and (k1 * x**n1 if seg.rise else k2 * x**n2) > _SATURATED_EXPONENT:
+                cur[j] = Segment(seg.t_start_s, seg.t_origin_s, seg.b, 0.0, seg.rise)
+                if seg.b == 0.0:
+                    self._lit.discard(j)
+        self._chunk_start = list(cur)
+        self._lit_start = set(self._lit)
         self._pending = []
 
-    def impulse_on_grid(self, t_grid_s: np.ndarray, weights: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray]:
+    def impulse_on_grid(self, t_grid_s: Sequence[float], weights: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray] | None:
         """Exact normalised impulse over each grid interval of the chunk.
 
         ``t_grid_s`` (K+1,) increasing, starting at the chunk start; ``weights`` (N, W)
         per-thruster factors (actual thrust times direction, lever arm, mode shapes...).
         Returns ``(per_step (K, W), per_thruster (N,))``: ``per_step[k] = sum_j w_j
         int_{t_k}^{t_k+1} level_j dt`` and the normalised impulse of each thruster over the
-        chunk (seconds of full thrust).
+        chunk (seconds of full thrust); None when no thruster gives any thrust in the chunk
+        (both would be zeros).
         """
         t0 = float(t_grid_s[0])
+        start = self._chunk_start
         chains: dict[int, list[Segment]] = {}
         for j, seg in self._pending:
-            chains.setdefault(j, [self._chunk_start[j]]).append(seg)
+            chain = chains.get(j)
+            if chain is None:
+                chains[j] = [start[j], seg]
+            else:
+                chain.append(seg)
         self._pending = []
-        rows: list[tuple[float, float, float, float, float, float]] = []
-        rise_l: list[bool] = []
-        for j in range(self.n):
-            chain = chains.get(j) or [self._chunk_start[j]]
+        live = self._lit_start.union(chains) if chains else self._lit_start
+        # One row per segment that gives thrust in the chunk, in thruster order (the order of
+        # the sums in per_step): start, origin, B, C, rise (Segment.row), then its end.
+        flat: list[float] = []
+        thr: list[int] = []
+        kinds: set[float] = set()  # kinds (rise 1.0 / decay 0.0) of the moving segments
+        inf = math.inf
+        for j in sorted(live):
+            chain = chains.get(j)
+            if chain is None:  # lit through the whole chunk on the segment in force
+                row = start[j].row
+                flat += row
+                flat.append(inf)
+                thr.append(j)
+                if row[3] != 0.0:
+                    kinds.add(row[4])
+                continue
+            last = len(chain) - 1
             for i, seg in enumerate(chain):
-                end = chain[i + 1].t_start_s if i + 1 < len(chain) else math.inf
+                end = chain[i + 1].t_start_s if i < last else inf
                 if end <= seg.t_start_s or (seg.b == 0.0 and seg.c == 0.0):
                     continue
-                rows.append((j, seg.t_start_s, end, seg.t_origin_s, seg.b, seg.c))
-                rise_l.append(seg.rise)
+                row = seg.row
+                flat += row
+                flat.append(end)
+                thr.append(j)
+                if row[3] != 0.0:
+                    kinds.add(row[4])
         self._chunk_start = list(self.current)
-        k_steps = len(t_grid_s) - 1
-        per_thr = np.zeros(self.n)
-        if not rows:
-            return np.zeros((k_steps, weights.shape[1])), per_thr
-        arr = np.array(rows, dtype=float)
-        rise = np.array(rise_l, dtype=bool)
-        thr = arr[:, 0].astype(int)
-        ts, te, to, b, c = arr[:, 1], arr[:, 2], arr[:, 3], arr[:, 4], arr[:, 5]
+        self._lit_start = set(self._lit)
+        if not thr:
+            return None
+        ts, to, b, c, rise, te = np.array(flat).reshape(len(thr), 6).T
         p = self.prof
-        # Cumulative integral of each segment from max(ts, t0) to every grid point.
+        # Each segment's integration limits clipped to the chunk: a first row at the segment's
+        # own lower limit lo = max(ts, t0) (the -inf point clips to it), then the grid points.
         lo = np.maximum(ts, t0)
-        x = np.clip(t_grid_s[:, None], lo[None, :], np.maximum(te, lo)[None, :])  # (K+1, S)
-        cum = b * (x - lo)
-        for is_rise, k, n, full in ((True, p.k1, p.n1, self._full1),
-                                    (False, p.k2, p.n2, self._full2)):
-            sel = (rise == is_rise) & (c != 0.0)
-            if sel.any():
-                xs = np.concatenate(((lo - to)[None, sel], x[:, sel] - to[sel]), axis=0)
-                e = _e_vec(k, n, full, xs)
-                cum[:, sel] += c[sel] * (e[1:] - e[0])
-        step = np.diff(cum, axis=0)  # (K, S)
-        per_step = step @ weights[thr]
-        np.add.at(per_thr, thr, cum[-1])
+        x = np.minimum(np.maximum(np.array((-inf, *t_grid_s))[:, None], lo),
+                       np.maximum(te, lo))  # (K+2, S)
+        cum = b * (x[1:] - lo)  # cumulative integral of each segment to every grid point
+        if kinds:
+            xs = x - to  # >= 0: a segment's origin is never after its start
+            if 1.0 in kinds:
+                e = _e_vec(p.k1, p.n1, self._full1, xs)
+                if 0.0 in kinds:
+                    e = np.where(rise, e, _e_vec(p.k2, p.n2, self._full2, xs))
+            else:
+                e = _e_vec(p.k2, p.n2, self._full2, xs)
+            # Constant segments (C = 0) add exact zeros (e is finite everywhere).
+            cum += c * (e[1:] - e[0])
+        per_step = (cum[1:] - cum[:-1]) @ weights[thr]  # (K, W)
+        per_thr = np.bincount(thr, weights=cum[-1], minlength=self.n)
         return per_step, per_thr
