@@ -155,11 +155,12 @@ class RigidBody:
         """One RK4 step as a single closure over the constants, state in and out as floats:
         ``advance(t, h, m1, m2, m3, q0, q1, q2, q3, w1, w2, w3) -> (q0, q1, q2, q3, w1, w2, w3)``.
 
-        The four stages of ``_make_deriv``'s derivative inlined with the same floating-point
-        operations (so the results are the same floats, bit for bit): the constant CMG momentum
-        ``h0`` (``dH/dt = 0``: the ``hd`` terms are exact zeros and are left out), the orbit
-        angle's sine and cosine computed once for the two mid-step stages, repeated products
-        computed once, and ``2 (x) v`` taken as ``x (2 v)`` (doubling is exact).
+        ``_make_deriv``'s derivative as one ``stage`` closure on floats with the same
+        floating-point operations (so the results are the same floats, bit for bit): the
+        constant CMG momentum ``h0`` (``dH/dt = 0``: the ``hd`` terms are exact zeros and are
+        left out), the orbit angle's sine and cosine computed once for the two mid-step stages,
+        repeated products computed once, and ``2 (x) v`` taken as ``x (2 v)`` (doubling is
+        exact).
         """
         (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = self._Jt
         (i00, i01, i02), (i10, i11, i12), (i20, i21, i22) = self._Jit
@@ -168,124 +169,62 @@ class RigidBody:
         g = 3.0 * w0 * w0
         sin, cos, sqrt = math.sin, math.cos, math.sqrt
 
+        def stage(gx, gy, mx, my, mz, p0, p1, p2, p3, v1, v2, v3):
+            """Derivative at attitude ``p``, rate ``v``; ``(gx, gy)`` the orbit angle's sine and
+            cosine (unused without gravity gradient): ``(dw1, dw2, dw3, dq0, dq1, dq2, dq3)``."""
+            L1 = j00 * v1 + j01 * v2 + j02 * v3 + h01
+            L2 = j10 * v1 + j11 * v2 + j12 * v3 + h02
+            L3 = j20 * v1 + j21 * v2 + j22 * v3 + h03
+            m1 = mx - (v2 * L3 - v3 * L2)
+            m2 = my - (v3 * L1 - v1 * L3)
+            m3 = mz - (v1 * L2 - v2 * L1)
+            if gg:
+                gx2, gy2 = 2.0 * gx, 2.0 * gy
+                s33, s12, s03 = p3 * p3, p1 * p2, p0 * p3
+                a1 = (1.0 - 2.0 * (p2 * p2 + s33)) * gx + (s12 + s03) * gy2
+                a2 = (s12 - s03) * gx2 + (1.0 - 2.0 * (p1 * p1 + s33)) * gy
+                a3 = (p1 * p3 + p0 * p2) * gx2 + (p2 * p3 - p0 * p1) * gy2
+                b1 = j00 * a1 + j01 * a2 + j02 * a3
+                b2 = j10 * a1 + j11 * a2 + j12 * a3
+                b3 = j20 * a1 + j21 * a2 + j22 * a3
+                m1 += g * (a2 * b3 - a3 * b2)
+                m2 += g * (a3 * b1 - a1 * b3)
+                m3 += g * (a1 * b2 - a2 * b1)
+            return (i00 * m1 + i01 * m2 + i02 * m3,
+                    i10 * m1 + i11 * m2 + i12 * m3,
+                    i20 * m1 + i21 * m2 + i22 * m3,
+                    0.5 * (-p1 * v1 - p2 * v2 - p3 * v3),
+                    0.5 * (p0 * v1 + p2 * v3 - p3 * v2),
+                    0.5 * (p0 * v2 - p1 * v3 + p3 * v1),
+                    0.5 * (p0 * v3 + p1 * v2 - p2 * v1))
+
         def advance(t, h, mx, my, mz, q0, q1, q2, q3, w1, w2, w3):
             hh = 0.5 * h
-            # -- stage a at (t, x)
-            L1 = j00 * w1 + j01 * w2 + j02 * w3 + h01
-            L2 = j10 * w1 + j11 * w2 + j12 * w3 + h02
-            L3 = j20 * w1 + j21 * w2 + j22 * w3 + h03
-            m1 = mx - (w2 * L3 - w3 * L2)
-            m2 = my - (w3 * L1 - w1 * L3)
-            m3 = mz - (w1 * L2 - w2 * L1)
-            if gg:
-                th = w0 * t
-                vx, vy = sin(th), cos(th)
-                vx2, vy2 = 2.0 * vx, 2.0 * vy
-                s33, s12, s03 = q3 * q3, q1 * q2, q0 * q3
-                a1 = (1.0 - 2.0 * (q2 * q2 + s33)) * vx + (s12 + s03) * vy2
-                a2 = (s12 - s03) * vx2 + (1.0 - 2.0 * (q1 * q1 + s33)) * vy
-                a3 = (q1 * q3 + q0 * q2) * vx2 + (q2 * q3 - q0 * q1) * vy2
-                b1 = j00 * a1 + j01 * a2 + j02 * a3
-                b2 = j10 * a1 + j11 * a2 + j12 * a3
-                b3 = j20 * a1 + j21 * a2 + j22 * a3
-                m1 += g * (a2 * b3 - a3 * b2)
-                m2 += g * (a3 * b1 - a1 * b3)
-                m3 += g * (a1 * b2 - a2 * b1)
-            aw1 = i00 * m1 + i01 * m2 + i02 * m3
-            aw2 = i10 * m1 + i11 * m2 + i12 * m3
-            aw3 = i20 * m1 + i21 * m2 + i22 * m3
-            aq0 = 0.5 * (-q1 * w1 - q2 * w2 - q3 * w3)
-            aq1 = 0.5 * (q0 * w1 + q2 * w3 - q3 * w2)
-            aq2 = 0.5 * (q0 * w2 - q1 * w3 + q3 * w1)
-            aq3 = 0.5 * (q0 * w3 + q1 * w2 - q2 * w1)
-            # -- stage b at (t + h/2, x + h/2 a)
-            p0, p1, p2, p3 = q0 + hh * aq0, q1 + hh * aq1, q2 + hh * aq2, q3 + hh * aq3
-            v1, v2, v3 = w1 + hh * aw1, w2 + hh * aw2, w3 + hh * aw3
-            L1 = j00 * v1 + j01 * v2 + j02 * v3 + h01
-            L2 = j10 * v1 + j11 * v2 + j12 * v3 + h02
-            L3 = j20 * v1 + j21 * v2 + j22 * v3 + h03
-            m1 = mx - (v2 * L3 - v3 * L2)
-            m2 = my - (v3 * L1 - v1 * L3)
-            m3 = mz - (v1 * L2 - v2 * L1)
-            if gg:
-                th = w0 * (t + hh)
-                cx, cy = sin(th), cos(th)  # also the next stage's
-                cx2, cy2 = 2.0 * cx, 2.0 * cy
-                s33, s12, s03 = p3 * p3, p1 * p2, p0 * p3
-                a1 = (1.0 - 2.0 * (p2 * p2 + s33)) * cx + (s12 + s03) * cy2
-                a2 = (s12 - s03) * cx2 + (1.0 - 2.0 * (p1 * p1 + s33)) * cy
-                a3 = (p1 * p3 + p0 * p2) * cx2 + (p2 * p3 - p0 * p1) * cy2
-                b1 = j00 * a1 + j01 * a2 + j02 * a3
-                b2 = j10 * a1 + j11 * a2 + j12 * a3
-                b3 = j20 * a1 + j21 * a2 + j22 * a3
-                m1 += g * (a2 * b3 - a3 * b2)
-                m2 += g * (a3 * b1 - a1 * b3)
-                m3 += g * (a1 * b2 - a2 * b1)
-            bw1 = i00 * m1 + i01 * m2 + i02 * m3
-            bw2 = i10 * m1 + i11 * m2 + i12 * m3
-            bw3 = i20 * m1 + i21 * m2 + i22 * m3
-            bq0 = 0.5 * (-p1 * v1 - p2 * v2 - p3 * v3)
-            bq1 = 0.5 * (p0 * v1 + p2 * v3 - p3 * v2)
-            bq2 = 0.5 * (p0 * v2 - p1 * v3 + p3 * v1)
-            bq3 = 0.5 * (p0 * v3 + p1 * v2 - p2 * v1)
-            # -- stage c at (t + h/2, x + h/2 b)
-            p0, p1, p2, p3 = q0 + hh * bq0, q1 + hh * bq1, q2 + hh * bq2, q3 + hh * bq3
-            v1, v2, v3 = w1 + hh * bw1, w2 + hh * bw2, w3 + hh * bw3
-            L1 = j00 * v1 + j01 * v2 + j02 * v3 + h01
-            L2 = j10 * v1 + j11 * v2 + j12 * v3 + h02
-            L3 = j20 * v1 + j21 * v2 + j22 * v3 + h03
-            m1 = mx - (v2 * L3 - v3 * L2)
-            m2 = my - (v3 * L1 - v1 * L3)
-            m3 = mz - (v1 * L2 - v2 * L1)
-            if gg:
-                s33, s12, s03 = p3 * p3, p1 * p2, p0 * p3
-                a1 = (1.0 - 2.0 * (p2 * p2 + s33)) * cx + (s12 + s03) * cy2
-                a2 = (s12 - s03) * cx2 + (1.0 - 2.0 * (p1 * p1 + s33)) * cy
-                a3 = (p1 * p3 + p0 * p2) * cx2 + (p2 * p3 - p0 * p1) * cy2
-                b1 = j00 * a1 + j01 * a2 + j02 * a3
-                b2 = j10 * a1 + j11 * a2 + j12 * a3
-                b3 = j20 * a1 + j21 * a2 + j22 * a3
-                m1 += g * (a2 * b3 - a3 * b2)
-                m2 += g * (a3 * b1 - a1 * b3)
-                m3 += g * (a1 * b2 - a2 * b1)
-            cw1 = i00 * m1 + i01 * m2 + i02 * m3
-            cw2 = i10 * m1 + i11 * m2 + i12 * m3
-            cw3 = i20 * m1 + i21 * m2 + i22 * m3
-            cq0 = 0.5 * (-p1 * v1 - p2 * v2 - p3 * v3)
-            cq1 = 0.5 * (p0 * v1 + p2 * v3 - p3 * v2)
-            cq2 = 0.5 * (p0 * v2 - p1 * v3 + p3 * v1)
-            cq3 = 0.5 * (p0 * v3 + p1 * v2 - p2 * v1)
-            # -- stage e at (t + h, x + h c)
-            p0, p1, p2, p3 = q0 + h * cq0, q1 + h * cq1, q2 + h * cq2, q3 + h * cq3
-            v1, v2, v3 = w1 + h * cw1, w2 + h * cw2, w3 + h * cw3
-            L1 = j00 * v1 + j01 * v2 + j02 * v3 + h01
-            L2 = j10 * v1 + j11 * v2 + j12 * v3 + h02
-            L3 = j20 * v1 + j21 * v2 + j22 * v3 + h03
-            m1 = mx - (v2 * L3 - v3 * L2)
-            m2 = my - (v3 * L1 - v1 * L3)
-            m3 = mz - (v1 * L2 - v2 * L1)
-            if gg:
-                th = w0 * (t + h)
-                vx, vy = sin(th), cos(th)
-                vx2, vy2 = 2.0 * vx, 2.0 * vy
-                s33, s12, s03 = p3 * p3, p1 * p2, p0 * p3
-                a1 = (1.0 - 2.0 * (p2 * p2 + s33)) * vx + (s12 + s03) * vy2
-                a2 = (s12 - s03) * vx2 + (1.0 - 2.0 * (p1 * p1 + s33)) * vy
-                a3 = (p1 * p3 + p0 * p2) * vx2 + (p2 * p3 - p0 * p1) * vy2
-                b1 = j00 * a1 + j01 * a2 + j02 * a3
-                b2 = j10 * a1 + j11 * a2 + j12 * a3
-                b3 = j20 * a1 + j21 * a2 + j22 * a3
-                m1 += g * (a2 * b3 - a3 * b2)
-                m2 += g * (a3 * b1 - a1 * b3)
-                m3 += g * (a1 * b2 - a2 * b1)
+            if gg:  # the orbit angle at the start, the middle (two stages) and the end
+                sa, ca = sin(w0 * t), cos(w0 * t)
+                sb, cb = sin(w0 * (t + hh)), cos(w0 * (t + hh))
+                se, ce = sin(w0 * (t + h)), cos(w0 * (t + h))
+            else:
+                sa = ca = sb = cb = se = ce = 0.0
+            aw1, aw2, aw3, aq0, aq1, aq2, aq3 = stage(sa, ca, mx, my, mz,
+                                                      q0, q1, q2, q3, w1, w2, w3)
+            bw1, bw2, bw3, bq0, bq1, bq2, bq3 = stage(
+                sb, cb, mx, my, mz, q0 + hh * aq0, q1 + hh * aq1, q2 + hh * aq2, q3 + hh * aq3,
+                w1 + hh * aw1, w2 + hh * aw2, w3 + hh * aw3)
+            cw1, cw2, cw3, cq0, cq1, cq2, cq3 = stage(
+                sb, cb, mx, my, mz, q0 + hh * bq0, q1 + hh * bq1, q2 + hh * bq2, q3 + hh * bq3,
+                w1 + hh * bw1, w2 + hh * bw2, w3 + hh * bw3)
+            ew1, ew2, ew3, eq0, eq1, eq2, eq3 = stage(
+                se, ce, mx, my, mz, q0 + h * cq0, q1 + h * cq1, q2 + h * cq2, q3 + h * cq3,
+                w1 + h * cw1, w2 + h * cw2, w3 + h * cw3)
             s = h / 6.0
-            w1 += s * (aw1 + 2.0 * (bw1 + cw1) + (i00 * m1 + i01 * m2 + i02 * m3))
-            w2 += s * (aw2 + 2.0 * (bw2 + cw2) + (i10 * m1 + i11 * m2 + i12 * m3))
-            w3 += s * (aw3 + 2.0 * (bw3 + cw3) + (i20 * m1 + i21 * m2 + i22 * m3))
-            q0 += s * (aq0 + 2.0 * (bq0 + cq0) + 0.5 * (-p1 * v1 - p2 * v2 - p3 * v3))
-            q1 += s * (aq1 + 2.0 * (bq1 + cq1) + 0.5 * (p0 * v1 + p2 * v3 - p3 * v2))
-            q2 += s * (aq2 + 2.0 * (bq2 + cq2) + 0.5 * (p0 * v2 - p1 * v3 + p3 * v1))
-            q3 += s * (aq3 + 2.0 * (bq3 + cq3) + 0.5 * (p0 * v3 + p1 * v2 - p2 * v1))
+            w1 += s * (aw1 + 2.0 * (bw1 + cw1) + ew1)
+            w2 += s * (aw2 + 2.0 * (bw2 + cw2) + ew2)
+            w3 += s * (aw3 + 2.0 * (bw3 + cw3) + ew3)
+            q0 += s * (aq0 + 2.0 * (bq0 + cq0) + eq0)
+            q1 += s * (aq1 + 2.0 * (bq1 + cq1) + eq1)
+            q2 += s * (aq2 + 2.0 * (bq2 + cq2) + eq2)
+            q3 += s * (aq3 + 2.0 * (bq3 + cq3) + eq3)
             inv = 1.0 / sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
             return q0 * inv, q1 * inv, q2 * inv, q3 * inv, w1, w2, w3
 
