@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from flight.thresholds import load_xi, propose
+from hil.argtypes import integer, number
 
 
 def register(sub) -> None:
@@ -20,17 +21,21 @@ def register(sub) -> None:
             "thrusters)) or --xi-mean/--xi-max/--run."
         ),
     )
-    p.add_argument("--detection-time", type=float, required=True, metavar="S",
+    p.add_argument("--detection-time", type=number(gt=0, le=86400), required=True, metavar="S",
                    help="required detection time, s")
-    p.add_argument("--tick", type=float, default=0.2, metavar="S", help="flight tick, s (0.2)")
+    p.add_argument("--tick", type=number(gt=0, le=10), default=0.2, metavar="S",
+                   help="flight tick, s (0.2)")
     p.add_argument("--stats", metavar="FILE", help="xi sequences of a fault-free run")
-    p.add_argument("--xi-mean", type=float, default=0.02, help="mean |xi| without fault (0.02)")
-    p.add_argument("--xi-max", type=float, default=1.0, help="largest |xi| without fault (1)")
-    p.add_argument("--run", type=int, default=1,
+    p.add_argument("--xi-mean", type=number(ge=0, le=1), default=0.02,
+                   help="mean |xi| without fault (0.02)")
+    p.add_argument("--xi-max", type=number(gt=0, le=1), default=1.0,
+                   help="largest |xi| without fault (1)")
+    p.add_argument("--run", type=integer(ge=1, le=10000), default=1,
                    help="longest burst of consecutive outliers without fault (1)")
-    p.add_argument("--xi-fault", type=float, default=1.0,
+    p.add_argument("--xi-fault", type=number(gt=0, le=1), default=1.0,
                    help="projection of the residual under a fault (1 with normalisation)")
-    p.add_argument("--margin", type=float, default=1.5, help="threshold / no-fault maximum (1.5)")
+    p.add_argument("--margin", type=number(ge=1, le=100), default=1.5,
+                   help="threshold / no-fault maximum (1.5)")
     p.set_defaults(func=_thresholds)
 
 

@@ -932,8 +932,9 @@ def _check_args(args) -> None:
                             ("--lockstep-duration", args.lockstep_duration, 1.0),
                             ("--pings", args.pings, 10), ("--alloc-ticks", args.alloc_ticks, 10),
                             ("--bitrate", args.bitrate, 1)):
-        if not value >= lo:
-            raise UsageError(f"hil bench: {name}: expected >= {lo:g}, got {value:g}")
+        if not (math.isfinite(value) and value >= lo):
+            raise UsageError(f"hil bench: {name}: expected a finite number >= {lo:g}, got "
+                             f"{value:g}")
     from hil.config import VEHICLE_DIR
 
     if not (VEHICLE_DIR / f"{args.vehicle}.yaml").exists():

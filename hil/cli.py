@@ -59,6 +59,13 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a path the user gave that cannot be read or written
+        if args.debug:
+            traceback.print_exc()
+        where = exc.filename if exc.filename is not None else args.command
+        print(f"error: {where}: expected a path that can be used here, got "
+              f"{exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

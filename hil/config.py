@@ -24,6 +24,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from hil.errors import ConfigError, Raw
+from hil.yamlsafe import YamlLimitError, read_yaml_file
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = REPO_ROOT / "configs"
@@ -37,6 +38,8 @@ PosFloat = Annotated[float, Field(gt=0)]
 NonNegFloat = Annotated[float, Field(ge=0)]
 Fraction = Annotated[float, Field(ge=0, le=1)]
 Forgetting = Annotated[float, Field(gt=0, lt=1)]
+RUN_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,79}$"
+MAX_DURATION_S = 7 * 86400.0
 
 
 class _Model(BaseModel):
@@ -432,7 +435,7 @@ class PlantOverridesCfg(_Model):
     disturbance_torque_B_Nm: tuple[float, float, float] | None = None
     # Each step gets the exact thrust impulse (plant.core), so 10 ms loses nothing of the
     # profile's ms features; RK4 error at w*h ~ 1e-3 is negligible.
-    step_s: PosFloat = 0.01
+    step_s: Annotated[float, Field(ge=1e-4, le=0.1)] = 0.01
 
 
 class ExpectedDetection(_Model):
@@ -509,11 +512,14 @@ class ScenarioCfg(_Model):
         safety: {thr_cmd_lost_ticks: 3, heartbeat_lost_s: 1.5, gyro_lost_ticks: 3}
     """
 
-    name: str
+    # The name becomes the default output folder ``runs/<name>``: a safe set of characters,
+    # so a run never writes outside the folder chosen for it.
+    name: str = Field(pattern=RUN_NAME_PATTERN)
     description: str = ""
     vehicle: str
-    duration_s: PosFloat
-    seed: int = Field(default=1, ge=0)
+    # A week of simulated time bounds what a run (and its records) can grow to.
+    duration_s: Annotated[float, Field(gt=0, le=MAX_DURATION_S)]
+    seed: int = Field(default=1, ge=0, lt=2**63)
     initial: InitialCfg = InitialCfg()
     target: AttitudeCfg = AttitudeCfg()
     plant: PlantOverridesCfg = PlantOverridesCfg()
@@ -575,6 +581,9 @@ _EXPECT = {
     "too_short": lambda c: f"at least {c['min_length']} item(s)",
     "too_long": lambda c: f"at most {c['max_length']} item(s)",
     "string_too_short": lambda c: "a non-empty string",
+    "string_pattern_mismatch": lambda c: (
+        "letters, digits and . _ + - (at most 80, not starting with a sign or dot)"
+        if c.get("pattern") == RUN_NAME_PATTERN else f"a string matching {c.get('pattern')}"),
 }
 
 
@@ -613,15 +622,19 @@ def _display(path: Path) -> str:
 
 
 def _read_yaml(path: Path) -> dict[str, Any]:
+    """Read a config file under ``hil.yamlsafe``'s limits (size, depth, aliases, duplicate
+    keys, UTF-8); every refusal is one ``ConfigError`` line."""
     where = _display(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        data = read_yaml_file(path)
     except FileNotFoundError:
         raise ConfigError(where, "", "an existing file", Raw("no such file")) from None
+    except IsADirectoryError:
+        raise ConfigError(where, "", "a file", Raw("a directory")) from None
     except OSError as exc:
-        raise ConfigError(where, "", "a readable file", exc.strerror) from None
-    try:
-        data = yaml.safe_load(text)
+        raise ConfigError(where, "", "a readable file", Raw(exc.strerror or str(exc))) from None
+    except YamlLimitError as exc:
+        raise ConfigError(where, exc.field, exc.expected, Raw(exc.found)) from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f"line {mark.line + 1}" if mark else "?"
@@ -651,9 +664,33 @@ def load_vehicle(
         data = dict(data)
         data["flight"] = _deep_merge(dict(data.get("flight") or {}), flight_overrides)
     try:
-        return VehicleCfg.model_validate(data)
+        vehicle = VehicleCfg.model_validate(data)
     except ValidationError as exc:
         raise _config_error(_display(path), exc) from None
+    _check_bus_limits(vehicle, _display(path))
+    return vehicle
+
+
+def _check_bus_limits(v: VehicleCfg, where: str) -> None:
+    """What the message catalog can carry (the ICD between flight and plant): thruster and
+    manifold counts that fit THR_CMD and FDIR_STATUS, and the tick and PWM grid its on-time
+    codes are defined on. Checked at load, so a vehicle the bus cannot fly never starts."""
+    from bus.catalog import N_MANIFOLDS_MAX, N_THRUSTERS_MAX, TICK_S
+
+    if len(v.thrusters) > N_THRUSTERS_MAX:
+        raise ConfigError(where, "thrusters", f"at most {N_THRUSTERS_MAX} thrusters (THR_CMD "
+                          "carries no more)", Raw(f"{len(v.thrusters)} thrusters"))
+    if len(v.manifolds) > N_MANIFOLDS_MAX:
+        raise ConfigError(where, "manifolds", f"at most {N_MANIFOLDS_MAX} manifolds (the "
+                          "manifold masks are 4 bits)", Raw(f"{len(v.manifolds)} manifolds"))
+    if abs(v.timing.tick_s - TICK_S) > 1e-12:
+        raise ConfigError(where, "timing.tick_s", f"{TICK_S} (the tick the bus catalog's "
+                          "cycle times and on-time codes are defined for)", v.timing.tick_s)
+    for key, want in (("pwm_quantum_ms", 10.0), ("min_on_ms", 30.0), ("min_off_ms", 30.0)):
+        got = getattr(v.timing, key)
+        if abs(got - want) > 1e-12:
+            raise ConfigError(where, f"timing.{key}", f"{want:g} (THR_CMD's on-time codes "
+                              "{0, 30..170, 200} ms)", got)
 
 
 def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

@@ -12,6 +12,16 @@ Messages follow one form: ``<where>: <what was expected>, got <what was found>``
 
 from __future__ import annotations
 
+SHOWN_MAX_CHARS = 120
+
+
+def one_line(text: str) -> str:
+    """``text`` with every non-printable character escaped (a key holding a newline or a
+    carriage return must not break the one-line error)."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
 
 class HilError(Exception):
     """Root of every exception the project raises on purpose."""
@@ -32,8 +42,10 @@ class ConfigError(HilError):
         self.field = field
         self.expected = expected
         self.found = found
-        loc = f"{where}: {field}" if field else where
-        shown = str(found) if isinstance(found, Raw) else repr(found)
+        loc = one_line(f"{where}: {field}" if field else where)
+        shown = one_line(str(found)) if isinstance(found, Raw) else repr(found)
+        if len(shown) > SHOWN_MAX_CHARS:  # one line, whatever the input held
+            shown = f"{shown[:SHOWN_MAX_CHARS]}... ({len(shown)} characters)"
         super().__init__(f"{loc}: expected {expected}, got {shown}")
 
 

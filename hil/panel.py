@@ -26,7 +26,8 @@ from pathlib import Path
 
 from bus.catalog import AckReason, AckStatus, FaultAction, FaultKind
 from bus.codec import FaultAck, FaultCmd
-from hil.config import VehicleCfg, load_vehicle
+from hil.argtypes import number
+from hil.config import MAX_DURATION_S, VehicleCfg, load_vehicle
 from hil.errors import BusError, FaultCommandError, UsageError
 from hil.recorder import read_jsonl
 from hil.summary import apply_clear
@@ -180,17 +181,20 @@ def register(sub) -> None:
     p.add_argument("action", choices=("inject", "clear", "list"))
     p.add_argument("--thruster", help="thruster name (see `hil fault list`)")
     p.add_argument("--type", choices=list(TYPES), help="fault type (inject)")
-    p.add_argument("--fraction", type=float,
+    p.add_argument("--fraction", type=number(ge=0, le=1),
                    help="stuck_on: residual thrust; degraded: remaining thrust (0..1)")
-    p.add_argument("--at", type=float, help="plant time [s] to start (default: now)")
-    p.add_argument("--clear-at", type=float, help="plant time [s] to end the fault")
+    p.add_argument("--at", type=number(ge=0, le=MAX_DURATION_S),
+                   help="plant time [s] to start (default: now)")
+    p.add_argument("--clear-at", type=number(ge=0, le=MAX_DURATION_S),
+                   help="plant time [s] to end the fault")
     p.add_argument("--vehicle",
                    help="vehicle to check thruster names against (default: the one the plant "
                         "in --run flies)")
     p.add_argument("--run", default="runs/up",
                    help="run folder of the running system, the --out of `hil up` (default "
                         "runs/up): its vehicle and, for list, its faults")
-    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for FAULT_ACK")
+    p.add_argument("--timeout", type=number(gt=0, le=3600), default=5.0,
+                   help="seconds to wait for FAULT_ACK")
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")
     p.set_defaults(func=_cmd)

@@ -68,6 +68,7 @@ import numpy as np
 from hil.errors import HilError, UsageError
 from hil.recorder import read_jsonl
 from hil.summary import COMPATIBLE
+from hil.verdict import EXIT_RUN_FAILED, judge_summary
 
 DPI = 100
 FIG_W_IN = 9.0
@@ -352,6 +353,8 @@ def table_rows(run: Run) -> list[dict[str, Any]]:
         "max_rate_error_deg_s": s.get("max_rate_error_deg_s"),
         "expectations_met": s.get("expectations_met"),
         "expectation_failures": list(s.get("expectation_failures") or []),
+        "verdict": judge_summary(s)[0],
+        "verdict_reasons": judge_summary(s)[1],
         "run_dir": str(run.path),
     }
     faults = run.thruster_faults
@@ -878,7 +881,8 @@ PLOTS: tuple[tuple[str, Callable[[Run, Path], Path | None], str], ...] = (
 
 @dataclass(frozen=True)
 class ReportResult:
-    """What ``write_report`` wrote. ``exit_code``: 0 all expectations met, 1 some not."""
+    """What ``write_report`` wrote. ``exit_code``: 0 every run passed, 1 some expectations
+    not met, 3 some run failed or its summary is incomplete (``hil.verdict``)."""
 
     out_dir: Path
     markdown: Path
@@ -886,6 +890,7 @@ class ReportResult:
     rows: list[dict[str, Any]]
     plots: dict[str, list[Path]]
     failed: list[str]
+    run_failed: list[str] = field(default_factory=list)
 
     @property
     def all_met(self) -> bool:
@@ -893,6 +898,8 @@ class ReportResult:
 
     @property
     def exit_code(self) -> int:
+        if self.run_failed:
+            return EXIT_RUN_FAILED
         return 0 if self.all_met else 1
 
 
@@ -908,8 +915,8 @@ def _slug(name: str, run_dir: Path, used: set[str]) -> str:
     return slug
 
 
-def _verdict(met: Any) -> str:
-    return "met" if met is True else ("**NOT met**" if met is False else "not judged")
+def _verdict(verdict: str) -> str:
+    return {"passed": "met", "not_met": "**NOT met**"}.get(verdict, "**RUN FAILED**")
 
 
 def _correct(row: dict[str, Any]) -> str:
@@ -926,8 +933,8 @@ def _markdown(runs: list[Run], rows: list[dict[str, Any]], plots: dict[str, list
               failed: list[str]) -> str:
     when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     verdict = ("all expectations met" if not failed
-               else f"**{len(failed)} of {len(runs)} run(s) did NOT meet their expectations**: "
-                    + ", ".join(failed))
+               else f"**{len(failed)} of {len(runs)} run(s) did NOT pass** (expectations not "
+                    "met, or the run itself failed): " + ", ".join(failed))
     out = [
         "# Thruster HIL report", "",
         f"{len(runs)} run(s), written {when}. Verdict: {verdict}.", "",
@@ -947,7 +954,7 @@ def _markdown(runs: list[Run], rows: list[dict[str, Any]], plots: dict[str, list
             f"| {r['scenario']} | {r['vehicle'] or '-'} | {r['fault'] or 'no fault'} "
             f"| {_s(r['fault_t_s'])} | {det} | {_s(r['detection_t_s'])} | {_s(r['latency_s'])} "
             f"| {_s(r['seed_latency_s'])} | {_correct(r)} | {r['false_alarms']} "
-            f"| {_num(r['max_attitude_error_deg'])} | {_verdict(r['expectations_met'])} |")
+            f"| {_num(r['max_attitude_error_deg'])} | {_verdict(r['verdict'])} |")
     out += [
         "",
         "Latency = detection time - fault time. Seed latency = the seed's own figure "
@@ -1008,8 +1015,10 @@ def _run_section(run: Run, pngs: list[Path]) -> list[str]:
         f"{_num(s.get('fuel_kg'), '.3f')} kg; flight compute p50/p99/max "
         f"{_num(cm.get('p50'), '.1f')}/{_num(cm.get('p99'), '.1f')}/{_num(cm.get('max'), '.1f')}"
         f" ms, overruns {s.get('overruns', '-')}; safe events {len(s.get('safe_events') or [])}")
-    out.append(f"- verdict: expectations {_verdict(s.get('expectations_met'))}")
-    for f in s.get("expectation_failures") or []:
+    verdict, reasons = judge_summary(s)
+    out.append(f"- verdict: {_verdict(verdict)}" if verdict == "run_failed"
+               else f"- verdict: expectations {_verdict(verdict)}")
+    for f in reasons:
         out.append(f"  - {f}")
     for note in run.notes:
         out.append(f"- note: {note}")
@@ -1060,18 +1069,21 @@ def write_report(run_dirs: list[Path], out_dir: Path, *, plots: bool = True,
         pngs_of[run.slug] = pngs
         if progress:
             progress(f"  {run.name}: {len(pngs)} plots ({time.monotonic() - t0:.1f} s)")
-    failed = [r.name for r in runs if r.summary.get("expectations_met") is False]
+    verdicts = {r.name: judge_summary(r.summary)[0] for r in runs}
+    failed = [n for n, v in verdicts.items() if v != "passed"]
     md = out_dir / "report.md"
     md.write_text(_markdown(runs, rows, pngs_of, failed), encoding="utf-8")
     js = out_dir / "report.json"
     js.write_text(json.dumps({
         "all_met": not failed,
         "failed": failed,
+        "run_failed": [n for n, v in verdicts.items() if v == "run_failed"],
         "rows": rows,
         "plots": {k: [p.name for p in v] for k, v in pngs_of.items()},
     }, indent=2) + "\n", encoding="utf-8")
     return ReportResult(out_dir=out_dir, markdown=md, json=js, rows=rows, plots=pngs_of,
-                        failed=failed)
+                        failed=failed,
+                        run_failed=[n for n, v in verdicts.items() if v == "run_failed"])
 
 
 def _cmd(args) -> int:
@@ -1082,13 +1094,13 @@ def _cmd(args) -> int:
     if result.all_met:
         print(f"report: {result.markdown} ({n} run(s), all expectations met)")
     else:
-        print(f"report: {result.markdown} ({n} run(s); expectations NOT met: "
+        print(f"report: {result.markdown} ({n} run(s); NOT passed: "
               f"{', '.join(result.failed)})")
     return result.exit_code
 
 
 def register(sub) -> None:
-    p = sub.add_parser("report", help="Markdown + PNG report from run folders (exit 0/1/2)",
+    p = sub.add_parser("report", help="Markdown + PNG report from run folders (exit 0/1/2/3)",
                        description="Write report.md, report.json and PNG plots (rates, phase "
                                    "plane, residuals, firing chart) from hil run folders.")
     p.add_argument("runs", nargs="+", metavar="DIR",

@@ -5,7 +5,8 @@ and writes ``DIR/summary.json``, ``DIR/bus.log`` (candump format: every frame on
 replayable with ``canplayer`` or ``python -m can.player``), ``DIR/run.rrd`` (rerun: truth and
 the flight's view on one timeline), ``DIR/plant.jsonl`` / ``DIR/flight.jsonl`` (per tick) and
 the processes' logs. Exit 0 when the scenario's expectations hold, 1 when not, 2 on a usage or
-configuration error.
+configuration error, 3 when the run itself failed (a process died or stopped early, ticks were
+lost: ``hil.verdict``), whatever its expectations say.
 
 ``hil up [--vehicle V | --scenario S] [--mode realtime|lockstep] [--viewer]`` brings the
 system up until Ctrl-C (or ``--duration``); faults are injected with ``hil fault``.
@@ -29,10 +30,12 @@ from pathlib import Path
 
 import yaml
 
-from hil.config import REPO_ROOT, load_scenario
+from hil.argtypes import number
+from hil.config import MAX_DURATION_S, REPO_ROOT, load_scenario
 from hil.errors import BusError, UsageError
 from hil.recorder import RrdRecorder, merge_by_tick, read_jsonl
 from hil.summary import summarise
+from hil.verdict import EXIT_CODES, EXIT_RUN_FAILED
 
 INSIDE_UML_ENV = "HIL_INSIDE_UML"
 
@@ -146,9 +149,13 @@ def _stop(proc: subprocess.Popen, grace_s: float = 3.0) -> None:
 
 
 def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
-              quiet: bool = False) -> dict:
-    """Start flight then plant, follow them until the plant ends, stop all, write outputs."""
+              quiet: bool = False, endless: bool = False) -> dict:
+    """Start flight then plant, follow them until the plant ends, stop all, write outputs.
+
+    ``endless`` (``hil up``): the run ends when the operator stops it, so an interruption
+    or an unreached duration is not a failure of the run."""
     sc = load_scenario(scenario_path)
+    n_ticks = int(round(sc.cfg.duration_s / sc.vehicle.timing.tick_s))
     out.mkdir(parents=True, exist_ok=True)
     for name in ("plant.jsonl", "flight.jsonl", "run.rrd", "summary.json", "plant.ready",
                  "flight.ready", "bus.log"):
@@ -163,6 +170,8 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     t_wall = time.monotonic()
     killed_flight_at = getattr(args, "kill_flight_at", None)
+    killed: dict[str, float] = {}
+    interrupted = False
     try:
         procs["flight"] = subprocess.Popen(_node_cmd("flight", scenario_path, out, args),
                                            stdout=logs["flight"], stderr=subprocess.STDOUT,
@@ -172,7 +181,6 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                                           stdout=logs["plant"], stderr=subprocess.STDOUT,
                                           env=env, cwd=REPO_ROOT)
         tails = {"plant": _Tail(out / "plant.jsonl"), "flight": _Tail(out / "flight.jsonl")}
-        n_ticks = int(round(sc.cfg.duration_s / sc.vehicle.timing.tick_s))
         last_print = 0.0
         while True:
             done = procs["plant"].poll() is not None
@@ -186,6 +194,7 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                 if source == "plant" and killed_flight_at is not None and \
                         r["t_s"] >= killed_flight_at and procs["flight"].poll() is None:
                     procs["flight"].kill()  # SIGKILL: the reliability check of DESIGN.md 10
+                    killed["flight"] = round(float(r["t_s"]), 3)
                     print(f"  t={r['t_s']:7.1f} s  hil: flight process killed (SIGKILL)",
                           flush=True)
             if new:
@@ -201,6 +210,7 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                 break
             time.sleep(0.05)
     except KeyboardInterrupt:
+        interrupted = True
         print("hil: interrupted, stopping the processes", file=sys.stderr)
     finally:
         for p in procs.values():
@@ -226,6 +236,9 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                "timing": timing_summary(plant_records, flight_records,
                                         sc.vehicle.timing.tick_s),
                "where": "user-mode Linux" if os.environ.get(INSIDE_UML_ENV) else "native"},
+        expected_ticks=None if endless else n_ticks,
+        exit_codes={k: p.returncode for k, p in procs.items()}, killed=killed,
+        interrupted=interrupted and not endless,
     )
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
@@ -242,9 +255,16 @@ def _print_verdict(s: dict, out: Path) -> None:
         print(f"  missed: {f['type']} {f['thruster']} at {f['t_s']:.1f} s")
     print(f"  compute ms p50/p99/max: {s['compute_ms']['p50']}/{s['compute_ms']['p99']}/"
           f"{s['compute_ms']['max']}, overruns {s['overruns']}")
+    for line in s["run_failures"]:
+        print(f"  RUN FAILED: {line}")
     for line in s["expectation_failures"]:
         print(f"  FAILED: {line}")
-    print(f"  expectations {'met' if s['expectations_met'] else 'NOT met'}; outputs in {out}")
+    if s["verdict"] == "run_failed":
+        print(f"  run FAILED (exit {EXIT_RUN_FAILED}): its expectations cannot be judged; "
+              f"outputs in {out}")
+    else:
+        print(f"  expectations {'met' if s['expectations_met'] else 'NOT met'}; "
+              f"outputs in {out}")
 
 
 def _batch_policy() -> None:
@@ -270,7 +290,7 @@ def _cmd_run(args) -> int:
     _batch_policy()
     s = supervise(scenario.resolve(), out.resolve(), args)
     _print_verdict(s, out)
-    return 0 if s["expectations_met"] else 1
+    return EXIT_CODES[s["verdict"]]
 
 
 def _cmd_up(args) -> int:
@@ -299,7 +319,7 @@ def _cmd_up(args) -> int:
     if rc is not None:
         return rc
     _batch_policy()
-    s = supervise(scenario, out, args, viewer=args.viewer)
+    s = supervise(scenario, out, args, viewer=args.viewer, endless=True)
     _print_verdict(s, out)
     return 0
 
@@ -318,7 +338,7 @@ def register(sub) -> None:
     p.add_argument("scenario", metavar="SCENARIO.yaml")
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/<scenario name>)")
-    p.add_argument("--kill-flight-at", type=float, metavar="T",
+    p.add_argument("--kill-flight-at", type=number(ge=0, le=MAX_DURATION_S), metavar="T",
                    help="SIGKILL the flight process at simulated time T (safe-state check)")
     _bus_args(p)
     p.set_defaults(func=_cmd_run)
@@ -327,10 +347,12 @@ def register(sub) -> None:
     u.add_argument("--vehicle", default="generic")
     u.add_argument("--scenario", help="scenario file instead of a bare vehicle")
     u.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")
-    u.add_argument("--duration", type=float, default=3600.0, help="seconds (default 3600)")
+    u.add_argument("--duration", type=number(gt=0, le=MAX_DURATION_S), default=3600.0,
+                   help="seconds (default 3600)")
     u.add_argument("--out", metavar="DIR", help="output folder (default runs/up)")
     u.add_argument("--viewer", action="store_true", help="open the rerun viewer live")
-    u.add_argument("--kill-flight-at", type=float, help=argparse_suppress())
+    u.add_argument("--kill-flight-at", type=number(ge=0, le=MAX_DURATION_S),
+                   help=argparse_suppress())
     _bus_args(u)
     u.set_defaults(func=_cmd_up)
 

@@ -24,6 +24,7 @@ from pathlib import Path
 
 from hil.config import SCENARIO_DIR, load_scenario
 from hil.errors import UsageError
+from hil.verdict import EXIT_RUN_FAILED
 
 INSIDE_UML_ENV = "HIL_INSIDE_UML"
 
@@ -63,14 +64,14 @@ def _run_here(files: list[Path], out: Path, args) -> list[dict]:
         t0 = time.monotonic()
         print(f"run-all: {name} ...", flush=True)
         s = supervise(p.resolve(), (out / name).resolve(), args, quiet=True)
-        verdict = "met" if s["expectations_met"] else "NOT met"
+        verdict = {"passed": "met", "not_met": "NOT met"}.get(s["verdict"], "RUN FAILED")
         dets = ", ".join(
             f"{d['type']} {d['thruster']} +{d['latency_s']:.1f} s" if d["latency_s"] is not None
             else f"{d['type']} {d['thruster']} (false alarm)" for d in s["detections"]) or "-"
         print(f"run-all: {name}: {verdict}; detections: {dets}; "
               f"{s['speed_x_realtime']}x real time, {time.monotonic() - t0:.0f} s wall",
               flush=True)
-        for line in s["expectation_failures"]:
+        for line in s["run_failures"] + s["expectation_failures"]:
             print(f"run-all:   FAILED: {line}", flush=True)
         results.append(s)
     return results
@@ -112,16 +113,19 @@ def _cmd_run_all(args) -> int:
     if args.no_report:
         import json
 
-        met = all(json.loads((out / p.stem / "summary.json").read_text())["expectations_met"]
-                  for p in files if (out / p.stem / "summary.json").exists())
-        return 0 if met else 1
+        from hil.verdict import EXIT_CODES, judge_summary
+
+        verdicts = [judge_summary(json.loads((out / p.stem / "summary.json").read_text()))[0]
+                    if (out / p.stem / "summary.json").exists() else "run_failed"
+                    for p in files]
+        return max(EXIT_CODES[v] for v in verdicts)
     from hil.report import write_report
 
     missing = [p.stem for p in files if not (out / p.stem / "summary.json").exists()]
     runs = [out / p.stem for p in files if p.stem not in missing]
     if not runs:
         print("run-all: no scenario produced a summary", file=sys.stderr)
-        return 1
+        return EXIT_RUN_FAILED
     res = write_report(runs, out / "report")
     print(f"run-all: {len(runs)} scenario(s) in {time.monotonic() - t0:.0f} s wall; report in "
           f"{out / 'report' / 'report.md'}")
@@ -129,6 +133,8 @@ def _cmd_run_all(args) -> int:
         print(f"run-all: {name}: no summary (the run did not finish)", file=sys.stderr)
     ok = res.all_met and not missing
     print(f"run-all: every expectation {'holds' if ok else 'does NOT hold'}")
+    if missing or res.run_failed:
+        return EXIT_RUN_FAILED
     return 0 if ok else 1
 
 

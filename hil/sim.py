@@ -118,5 +118,5 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
         flight_records=flight_recs, expect=cfg.expect,
         extra={"wall_s": round(wall, 3), "sim_s": n_ticks * h,
                "speed_x_realtime": round(n_ticks * h / max(wall, 1e-9), 1),
-               "where": "in-process (no bus)"})
+               "where": "in-process (no bus)"}, expected_ticks=n_ticks)
     return SimRun(summary, plant_recs, flight_recs, outputs, truths)

@@ -5,8 +5,9 @@ Pure: works on the per-tick records the plant and flight processes write (``plan
 
 ``scenario, vehicle, mode, faults[{t_s, thruster, type, fraction}], detections[{t_s, thruster,
 type, latency_s, correct}], false_alarms, missed_faults, max_attitude_error_deg,
-max_rate_error_deg_s, fuel_kg, ticks, overruns, compute_ms{p50, p99, max}, bus{...},
-expectations_met, expectation_failures``.
+max_rate_error_deg_s, fuel_kg, ticks, flight_ticks, overruns, missed_releases,
+compute_ms{p50, p99, max}, bus{...}, run_failures, expectations_met, expectation_failures,
+verdict`` (``passed``, ``not_met`` or ``run_failed``: see ``hil.verdict``).
 
 A detection is *correct* when a thruster fault active at the detection time (injected at or
 before it, not cleared before it) names the detected thruster (or is in the detected group)
@@ -28,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from hil.config import ExpectationsCfg
+from hil.verdict import run_integrity, verdict_of
 
 COMPATIBLE = {
     "stuck_on": {"stuck_on"},
@@ -176,8 +178,17 @@ def summarise(
     flight_records: list[dict[str, Any]],
     expect: ExpectationsCfg | None,
     extra: dict[str, Any] | None = None,
+    expected_ticks: int | None = None,
+    exit_codes: dict[str, int | None] | None = None,
+    killed: dict[str, float] | None = None,
+    interrupted: bool = False,
+    io_error: str | None = None,
 ) -> dict[str, Any]:
-    """Build ``summary.json`` from the per-tick records of both processes."""
+    """Build ``summary.json`` from the per-tick records of both processes.
+
+    The run's integrity (``hil.verdict.run_integrity``: both processes ticked to the end,
+    none died, no release lost) is judged first; a failed run is ``verdict: run_failed``
+    with its ``run_failures`` and never counts its expectations as met."""
     faults: list[dict[str, Any]] = []
     for r in plant_records:
         faults.extend(dict(f) for f in r.get("faults_injected", []))
@@ -248,7 +259,14 @@ def summarise(
             }
     if extra:
         summary.update(extra)
+    integrity = run_integrity(
+        mode=mode, plant_records=plant_records, flight_records=flight_records,
+        expected_ticks=expected_ticks, exit_codes=exit_codes, killed=killed,
+        interrupted=interrupted, io_error=io_error)
+    summary["missed_releases"] = integrity["missed_releases"]
+    summary["run_failures"] = integrity["run_failures"]
     fails = check_expectations(summary, expect)
-    summary["expectations_met"] = not fails
+    summary["expectations_met"] = not fails and integrity["run_ok"]
     summary["expectation_failures"] = fails
+    summary["verdict"] = verdict_of(integrity["run_ok"], not fails)
     return summary

@@ -71,6 +71,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
+from hil.argtypes import number
 from hil.errors import HilError, UsageError
 
 UML_MODULES_ROOT = Path("/usr/lib/uml/modules")
@@ -653,7 +654,7 @@ def register(sub) -> None:
         ),
     )
     p.add_argument("--mem", default="1G", help="memory of the UML kernel (default 1G)")
-    p.add_argument("--timeout", type=float, default=None, metavar="S",
+    p.add_argument("--timeout", type=number(gt=0), default=None, metavar="S",
                    help="stop the run after S seconds (error, exit 2)")
     p.add_argument("--channel", action="append", metavar="NAME",
                    help="vcan interface to create (repeatable; default vcan0)")

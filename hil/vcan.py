@@ -24,6 +24,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from hil.argtypes import number
 from hil.errors import BusError, UsageError
 from hil.uml import command_argv, in_uml, run_in_uml
 
@@ -290,7 +291,7 @@ def register(sub) -> None:
     force.add_argument("--native", action="store_true",
                        help="always run natively (error if vcan cannot exist here)")
     ex.add_argument("--mem", default="1G", help="memory of the UML kernel (default 1G)")
-    ex.add_argument("--timeout", type=float, default=None, metavar="S",
+    ex.add_argument("--timeout", type=number(gt=0), default=None, metavar="S",
                     help="stop a user-mode Linux run after S seconds (error, exit 2)")
     ex.add_argument("-v", "--verbose", action="store_true",
                     help="say on stderr which path was taken")

@@ -189,7 +189,9 @@ def test_parts_option() -> None:
 
 def test_usage_errors_exit_2(capsys) -> None:
     assert bench.main(["bench", "--duration", "0"]) == 2
-    assert "--duration: expected >= 2, got 0" in capsys.readouterr().err
+    assert "--duration: expected a finite number >= 2, got 0" in capsys.readouterr().err
+    assert bench.main(["bench", "--duration", "inf"]) == 2
+    assert "--duration: expected a finite number >= 2, got inf" in capsys.readouterr().err
     assert bench.main(["bench", "--vehicle", "nope"]) == 2
     assert "--vehicle: expected one of" in capsys.readouterr().err
 

@@ -84,7 +84,9 @@ def make_run(tmp: Path, name: str = "run", *, fault: bool = True, correct: bool 
         "false_alarms": [] if correct or not fault else [det],
         "missed_faults": [] if correct or not fault else faults,
         "max_attitude_error_deg": 1.25, "max_rate_error_deg_s": 0.4, "fuel_kg": 0.01,
-        "ticks": N_TICKS, "overruns": 0, "compute_ms": {"p50": 1.0, "p99": 2.0, "max": 3.0},
+        "ticks": N_TICKS, "flight_ticks": N_TICKS, "overruns": 0, "run_failures": [],
+        "verdict": "passed" if met else "not_met",
+        "compute_ms": {"p50": 1.0, "p99": 2.0, "max": 3.0},
         "sim_s": 20.0, "wall_s": 2.0, "where": "native",
         "expectations_met": met,
         "expectation_failures": [] if met else ["detection of X+ stuck_on within 3.7 s: ..."],
@@ -201,9 +203,34 @@ def test_exit_1_when_a_run_did_not_meet_expectations(tmp_path: Path, capsys) -> 
     assert _cli(["report", str(good), str(bad), "--out", str(tmp_path / "r2"),
                  "--no-plots"]) == 1
     out = capsys.readouterr().out
-    assert "expectations NOT met: T-stuck" in out
-    assert "**1 of 2 run(s) did NOT meet their expectations**" in (
-        tmp_path / "r2" / "report.md").read_text()
+    assert "NOT passed: T-stuck" in out
+    assert "**1 of 2 run(s) did NOT pass**" in (tmp_path / "r2" / "report.md").read_text()
+
+
+def test_a_malformed_summary_fails_the_report(tmp_path: Path, capsys) -> None:
+    """Issue 17: a summary holding only the scenario's name is not "all expectations met"."""
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    (bare / "summary.json").write_text('{"scenario": "x"}')
+    assert _cli(["report", str(bare), "--out", str(tmp_path / "r"), "--no-plots"]) == 3
+    md = (tmp_path / "r" / "report.md").read_text()
+    assert "**RUN FAILED**" in md
+    assert "summary: verdict: expected a field, got nothing" in md
+    assert "NOT passed: x" in capsys.readouterr().out
+
+
+def test_a_failed_run_fails_the_report_with_exit_3(tmp_path: Path) -> None:
+    dead = make_run(tmp_path, "dead")
+    s = json.loads((dead / "summary.json").read_text())
+    s.update(run_failures=["flight process died (exit code 1); see flight.log"],
+             verdict="run_failed", expectations_met=False)
+    (dead / "summary.json").write_text(json.dumps(s))
+    assert _cli(["report", str(dead), "--out", str(tmp_path / "r"), "--no-plots"]) == 3
+    assert "flight process died (exit code 1)" in (tmp_path / "r" / "report.md").read_text()
+    # A summary that says "passed" while it lists a run failure contradicts itself.
+    s.update(verdict="passed", expectations_met=True)
+    (dead / "summary.json").write_text(json.dumps(s))
+    assert _cli(["report", str(dead), "--out", str(tmp_path / "r2"), "--no-plots"]) == 3
 
 
 def test_missing_run_folder_is_a_usage_error(tmp_path: Path) -> None:

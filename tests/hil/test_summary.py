@@ -98,9 +98,17 @@ def test_expectations() -> None:
 
 
 def _plant(ts, att, rate, dv=(0.0, 0.0, 0.0), faults=()):
-    recs = [{"t_s": t, "att_err_deg": a, "rate_err_deg_s": r, "dv_B_m_s": list(dv),
-             "faults_injected": []} for t, a, r in zip(ts, att, rate, strict=True)]
+    recs = [{"tick": k, "t_s": t, "att_err_deg": a, "rate_err_deg_s": r, "dv_B_m_s": list(dv),
+             "faults_injected": []} for k, (t, a, r) in enumerate(zip(ts, att, rate, strict=True))]
     recs[0]["faults_injected"] = list(faults)
+    return recs
+
+
+def _flight(n_ticks, detections=()):
+    """Flight records of a sound run (one per tick), with ``detections`` at their ticks."""
+    recs = [{"tick": k, "t_s": round(0.2 * k, 6), "detection": None} for k in range(n_ticks)]
+    for d in detections:
+        recs[round(d["t_s"] / 0.2)]["detection"] = d
     return recs
 
 
@@ -120,14 +128,14 @@ def test_orbit_correction_expectations_delta_v_and_excursions() -> None:
                           max_excursion_s=1.0)
     s = summarise(scenario="s", vehicle="orel", mode="lockstep",
                   plant_records=_plant(ts, [0.1] * 50, rate, dv=(7.1, -2.5, -1.0)),
-                  flight_records=[], expect=exp)
+                  flight_records=_flight(50), expect=exp)
     assert s["delta_v_B_m_s"] == [7.1, -2.5, -1.0] and s["longest_rate_excursion_s"] == 2.0
     assert len(s["expectation_failures"]) == 2     # y off by 0.5 m/s; a 2 s excursion
     exp_ok = ExpectationsCfg(delta_v_B_m_s=(7.0, -2.4, -1.0), rate_band_deg_s=0.12,
                              max_excursion_s=3.0)
     s = summarise(scenario="s", vehicle="orel", mode="lockstep",
                   plant_records=_plant(ts, [0.1] * 50, rate, dv=(7.1, -2.5, -1.0)),
-                  flight_records=[], expect=exp_ok)
+                  flight_records=_flight(50), expect=exp_ok)
     assert s["expectations_met"], s["expectation_failures"]
 
 
@@ -136,7 +144,7 @@ def test_recovery_is_judged_after_the_first_correct_detection() -> None:
     att = [0.3] * 100
     att[60] = 1.5                                  # 12 s: inside the recovery window
     fault = dict(FAULT, t_s=1.0)
-    flight = [{"t_s": 2.0, "detection": {"t_s": 2.0, "thruster": "X+", "type": "stuck_on"}}]
+    flight = _flight(100, [{"t_s": 2.0, "thruster": "X+", "type": "stuck_on"}])
     exp = ExpectationsCfg(recover_after_s=5.0, recovered_attitude_deg=0.8)
     s = summarise(scenario="s", vehicle="generic", mode="lockstep",
                   plant_records=_plant(ts, att, [0.01] * 100, faults=[fault]),
@@ -153,10 +161,12 @@ def test_recovery_is_judged_after_the_first_correct_detection() -> None:
 def test_a_demonstration_run_must_raise_its_false_alarm() -> None:
     exp = ExpectationsCfg(no_false_alarm=False, false_alarm_expected=True)
     quiet = summarise(scenario="s", vehicle="iss_rs", mode="lockstep",
-                      plant_records=_plant([0.0], [0.1], [0.0]), flight_records=[], expect=exp)
+                      plant_records=_plant([0.0], [0.1], [0.0]), flight_records=_flight(1),
+                      expect=exp)
     assert quiet["expectation_failures"] == [
         "false alarm: expected one (demonstration run), got none"]
-    flight = [{"t_s": 4.2, "detection": {"t_s": 4.2, "thruster": "P", "type": "stuck_on"}}]
+    flight = [{"tick": 0, "t_s": 4.2,
+               "detection": {"t_s": 4.2, "thruster": "P", "type": "stuck_on"}}]
     loud = summarise(scenario="s", vehicle="iss_rs", mode="lockstep",
                      plant_records=_plant([0.0], [0.1], [0.0]), flight_records=flight,
                      expect=exp)
