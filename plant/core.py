@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import heapq
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +60,7 @@ from plant.thruster import (
 
 # Times closer than this are the same instant (float tick arithmetic).
 _EPS_S = 1e-9
+TICK_RECORDS_KEPT = 600  # two minutes of ticks: enough for any reader between pops
 
 _ZERO3 = (0.0, 0.0, 0.0)
 
@@ -230,7 +232,9 @@ class Plant:
         self._samples: list[GyroSample] = []
         self._pending_ticks: dict[int, tuple] = {}
         self._open_tick: tuple | None = None
-        self._records: list[TickRecord] = []
+        # Completed tick records until someone pops them; bounded, because the process shells
+        # never do (unbounded, this list was the plant's memory growth: ~27 MB per hour).
+        self._records: deque[TickRecord] = deque(maxlen=TICK_RECORDS_KEPT)
         self.counters = {"clamped_commands": 0, "late_commands": 0, "steps": 0}
 
     # ------------------------------------------------------------------ commands
@@ -538,8 +542,9 @@ class Plant:
 
     def pop_tick_records(self) -> list[TickRecord]:
         """Completed tick records (a tick completes when the next command's apply time is
-        reached), oldest first."""
-        out, self._records = self._records, []
+        reached), oldest first; at most the last ``TICK_RECORDS_KEPT``."""
+        out = list(self._records)
+        self._records.clear()
         return out
 
     def thrust_now_n(self) -> np.ndarray:

@@ -81,7 +81,9 @@ def test_killing_the_flight_puts_the_plant_safe(tmp_path) -> None:
     out = tmp_path / "kill"
     r = _run(["run", str(SCENARIO_DIR / "S000-stuck.yaml"), "--out", str(out),
               "--kill-flight-at", "10"])
-    assert r.returncode == 1  # the fault at 18 s can no longer be detected
+    # A killed flight is a failed run (exit 3), not "expectations not met": the fault at 18 s
+    # could no longer be detected, and nothing of the run's verdict can be believed.
+    assert r.returncode == 3, r.stdout[-2000:]
     plant = [p for p in _jsonl(out / "plant.jsonl") if not p.get("final")]
     flight = _jsonl(out / "flight.jsonl")
     safe_ticks = [p["tick"] for p in plant if p.get("safe")]
@@ -107,6 +109,8 @@ def test_killing_the_flight_puts_the_plant_safe(tmp_path) -> None:
     assert not burning, burning[:5]
     # The summary and the recording hold every tick up to the kill (and the plant's after).
     s = _summary(out)
+    assert s["verdict"] == "run_failed" and s["expectations_met"] is False
+    assert "flight process killed on request at 10 s (--kill-flight-at)" in s["run_failures"]
     assert s["flight_ticks"] == len(flight) == last_flight_tick + 1
     assert s["ticks"] == len(plant) == 150  # the plant runs the whole 30 s
     assert s["safety"]["thr_cmd_lost_ticks"] == lost_after
