@@ -35,7 +35,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-from hil.errors import CatalogError
+from bus.errors import CatalogError
 
 BITRATE_BPS = 1_000_000
 FRAME_BYTES = 8

@@ -33,7 +33,7 @@ from bus.catalog import (
     NodeState,
     SignalDef,
 )
-from hil.errors import EncodeError
+from bus.errors import EncodeError
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from bus.catalog import HEARTBEAT_PERIOD_S, NodeState
 from bus.catalog import Node as NodeId
 from bus.codec import Gyro, Heartbeat, Message, Sync, ThrCmd
-from hil.errors import ConfigError
+from common.errors import ConfigError
 
 # --- events -----------------------------------------------------------------------------
 

@@ -33,8 +33,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from bus.catalog import BITRATE_BPS
 from bus.codec import Frame, Message, encode
 from bus.e2e import Protector
+from bus.errors import BusError
 from bus.receiver import Receiver, Verdict
-from hil.errors import BusError
 
 CLOCK = "realtime"
 

@@ -42,8 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.vehicle import VehicleArrays, VehicleCfg
 from flight.quantise import PulseSet, Quantiser
-from hil.config import VehicleArrays, VehicleCfg
 
 OPTIMAL, ITERATION_LIMIT, INFEASIBLE = 0, 1, 2
 

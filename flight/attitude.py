@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from hil.quaternion import q_conj, q_mul
+from common.quaternion import q_conj, q_mul
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 Z_AXIS = np.array([0.0, 0.0, 1.0])

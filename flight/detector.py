@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.config import DetectorCfg
+from common.vehicle import DetectorCfg
 
 STUCK_ON = "stuck_on"
 FAIL_TO_FIRE = "fail_to_fire"

@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from common.vehicle import FdirCfg
 from flight.detector import Detection
-from hil.config import FdirCfg
 
 NOMINAL, RECONFIGURED, REPORTED, SAFE = "nominal", "reconfigured", "reported", "safe"
 STATES = (NOMINAL, RECONFIGURED, REPORTED, SAFE)

@@ -40,8 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.config import VehicleArrays, VehicleCfg
-from hil.quaternion import cross3
+from common.quaternion import cross3
+from common.vehicle import VehicleArrays, VehicleCfg
 
 # Tolerance on "the command is the full tick" (continuous firing), s.
 _FULL_TICK_TOL_S = 1e-6

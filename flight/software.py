@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.scenario import AttitudeCfg
+from common.vehicle import VehicleArrays, VehicleCfg
 from flight.allocator import Allocation, Allocator
 from flight.attitude import AttitudeEstimate, q_rotate_inv
 from flight.controller import Controller, RateDemand
@@ -34,7 +36,6 @@ from flight.fdir import Fdir
 from flight.kalman import DisturbanceKalman
 from flight.observer import AdaptiveObserver, ObserverOutput
 from flight.onboard_model import OnboardModel, Prediction
-from hil.config import AttitudeCfg, VehicleArrays, VehicleCfg
 
 _Y_ORBIT = np.array([0.0, 1.0, 0.0])  # local vertical in the orbit frame (seed 003 eq. 9)
 

@@ -17,11 +17,11 @@ from hil.errors import HilError
 # Order is the order in `hil --help`.
 COMMAND_MODULES = (
     "hil.config_cmd",
-    "plant.cli",
-    "bus.cli",
+    "hil.thruster_profile_cmd",
+    "hil.dbc_cmd",
     "hil.vcan",
     "hil.uml",
-    "flight.cli",
+    "hil.thresholds_cmd",
     "hil.run",
     "hil.panel",
     "hil.runall",

@@ -30,8 +30,8 @@ import math
 
 import numpy as np
 
-from hil.quaternion import q_conj as quat_conj
-from hil.quaternion import q_mul as quat_mul
+from common.quaternion import q_conj as quat_conj
+from common.quaternion import q_mul as quat_mul
 
 # --------------------------------------------------------------------------- quaternions
 

@@ -44,8 +44,8 @@ import numpy as np
 from scipy.special import erf, gammainc
 from scipy.special import gamma as _gamma
 
-from hil.config import ThrustProfileCfg, TimingCfg
-from hil.errors import ConfigError
+from common.errors import ConfigError
+from common.vehicle import ThrustProfileCfg, TimingCfg
 
 LN100 = math.log(100.0)
 # exp(-50) ~ 2e-22: a segment this far past its origin is at its target to double precision.

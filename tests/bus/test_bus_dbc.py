@@ -3,9 +3,9 @@
 import cantools
 
 from bus.catalog import CATALOG, bus_load
-from bus.cli import load_table
 from bus.dbc import DBC_PATH, dbc_text
 from hil.cli import main
+from hil.dbc_cmd import load_table
 
 
 def test_committed_dbc_matches_catalog():
@@ -35,7 +35,7 @@ def test_cli_check_and_out(tmp_path, capsys):
 def test_cli_check_detects_difference(monkeypatch, tmp_path):
     stale = tmp_path / "hil.dbc"
     stale.write_text('VERSION "old"\n')
-    monkeypatch.setattr("bus.cli.DBC_PATH", stale)
+    monkeypatch.setattr("hil.dbc_cmd.DBC_PATH", stale)
     assert main(["dbc", "--check"]) == 1
 
 

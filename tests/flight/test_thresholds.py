@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
+from flight.errors import ThresholdError
 from flight.thresholds import progression, propose, ticks_to_reach
 from hil.cli import main
-from hil.errors import UsageError
 
 
 def test_progression_closed_form() -> None:
@@ -48,5 +48,5 @@ def test_errors_are_one_line(tmp_path, capsys) -> None:
     assert capsys.readouterr().err == "error: --detection-time: expected > 0 s, got -1\n"
     assert main(["thresholds", "--detection-time", "1", "--stats", str(tmp_path / "x.json")]) == 2
     assert "no such file" in capsys.readouterr().err
-    with pytest.raises(UsageError):
+    with pytest.raises(ThresholdError):
         propose(0.2, 0.2, xi_max=1.0, run=5, margin=10.0)

@@ -1,4 +1,4 @@
-"""`hil thruster-profile` (plant.cli): lags and pulse impulses through the CLI entry point.
+"""`hil thruster-profile` (hil.thruster_profile_cmd): lags and pulse impulses via the CLI.
 
 Oracles: the configured lags of ``configs/vehicles/orel.yaml`` (seed 004 section 4: 30 ms on,
 27 ms off), the nominal thrust read from the same file, and seed 004's effective firing time
