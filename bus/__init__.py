@@ -1,4 +1,4 @@
-"""The CAN bus layer (DESIGN.md section 4).
+"""The CAN bus layer (docs/design.md section 4).
 
 Sans-IO core: ``catalog`` (single source of truth: frames, IDs, signals, cycle times),
 ``dbc`` (DBC generated from it, committed as ``hil.dbc``), ``codec`` (typed messages <->

@@ -1,4 +1,4 @@
-"""Thin transport over python-can: ``open_bus``, ``Port``, ``BusLogger`` (DESIGN.md section 4).
+"""Thin transport over python-can: ``open_bus``, ``Port``, ``BusLogger`` (docs/design.md section 4).
 
 Clocks. python-can stamps received frames in wall-clock seconds: socketcan with the kernel's
 receive timestamp (CLOCK_REALTIME), ``virtual`` and ``udp_multicast`` with ``time.time()``.

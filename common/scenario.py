@@ -28,7 +28,7 @@ FaultKind = Literal[
 
 
 class FaultSpec(_Model):
-    """One injected fault (DESIGN.md 5.6).
+    """One injected fault (docs/design.md 5.6).
 
     ``fraction``: for ``stuck_on`` the residual thrust when commanded off (1.0 = full); for
     ``degraded`` the thrust that remains. Gyro faults use ``axis`` (0..2, or None for all) and

@@ -70,7 +70,7 @@ class ThrustProfileCfg(_Model):
 
 
 class TimingCfg(_Model):
-    """Flight tick and PWM quantisation (seed 004; DESIGN.md section 3)."""
+    """Flight tick and PWM quantisation (seed 004; docs/design.md section 3)."""
 
     tick_s: PosFloat = 0.2
     pwm_quantum_ms: PosFloat = 10.0
@@ -79,7 +79,7 @@ class TimingCfg(_Model):
 
 
 class OrbitCfg(_Model):
-    """Circular orbit for the gravity-gradient torque ``3 w0^2 (j x J j)`` (DESIGN.md 5.1)."""
+    """Circular orbit for the gravity-gradient torque ``3 w0^2 (j x J j)`` (docs/design.md 5.1)."""
 
     rate_rad_s: NonNegFloat = 0.001162
     gravity_gradient: bool = True
@@ -195,7 +195,7 @@ class DetectorCfg(_Model):
     dead_zone_rad_s: NonNegFloat = 1e-4
     # The dead zone grows with what was commanded: |dw| below dead_zone_rad_s plus this
     # fraction of the sum of the commanded thrusters' rate changes (sum_j |mu_j| tau_E,j) is
-    # treated as zero, so thrust errors of the size the vehicle admits (DESIGN.md 10: +/-15 %)
+    # treated as zero, so thrust errors of the size the vehicle admits (docs/design.md 10: +/-15 %)
     # are not read as a failure of a whole thruster.
     relative_dead_zone: float = Field(default=0.0, ge=0.0, lt=1.0)
     forgetting_on: Forgetting = 0.9
@@ -218,7 +218,7 @@ class KalmanCfg(_Model):
 
 
 class FdirCfg(_Model):
-    """Response to a detection (DESIGN.md 6.4 step 7), per vehicle."""
+    """Response to a detection (docs/design.md 6.4 step 7), per vehicle."""
 
     on_stuck_on: Literal["close_manifold", "drop_thruster", "none"] = "close_manifold"
     on_fail_to_fire: Literal["close_manifold", "drop_thruster", "none"] = "drop_thruster"

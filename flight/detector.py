@@ -1,6 +1,7 @@
 """Thruster fault detector: integral residuals with forgetting (seed 000; seed 003).
 
-Every tick (DESIGN 6.4), with ``dw`` (3,) the residual ``w_obs - w_calc`` in body axes (rad/s):
+Every tick (docs/design.md 6.4), with ``dw`` (3,) the residual ``w_obs - w_calc`` in body axes
+(rad/s):
 
 1. dead zone: ``|dw| < dead_zone_rad_s`` -> ``dw_n = 0``; otherwise ``dw_n = dw / |dw|``
    (seed 000: the normalisation keeps a strong thruster's fault from tripping a weak one first);

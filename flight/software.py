@@ -1,4 +1,4 @@
-"""The flight software's tick as one pure object (DESIGN section 3 pipeline).
+"""The flight software's tick as one pure object (docs/design.md section 3 pipeline).
 
 ``FlightSoftware(vehicle, target=None, initial_attitude=None).step(tick, gyro_B_rad_s)`` runs,
 in order: read the gyro sample; observer update (seed 003 eqs. 7-8); detector update with the

@@ -1,4 +1,5 @@
-"""Detector thresholds from a required detection time and fault-free statistics (DESIGN 6.4 step 6).
+"""Detector thresholds from a required detection time and fault-free statistics
+(docs/design.md 6.4 step 6).
 
 Seed 000: for a constant projection ``xi`` the integral residual is an arithmetic-geometric
 progression ``rho[n] = xi (1 - w^(n+1)) / (1 - w)`` (limit ``xi / (1 - w)``); a lone outlier

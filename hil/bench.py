@@ -3,7 +3,7 @@
 ``hil bench [--duration S] [--out DIR] [--json FILE] [--stress] [--rt] [--vehicle V]``
 
 Runs, where vcan0 exists (natively, or inside user-mode Linux which it starts by itself like
-``hil run``), and prints one table (DESIGN.md section 1, item 4; issue 7):
+``hil run``), and prints one table (docs/design.md section 1, item 4; issue 7):
 
 * a real-time run of a generated scenario (``--vehicle``, default ``orel``: 30 thrusters,
   firing from a 3 deg start) through ``hil.run.supervise``: tick release jitter (wake-up

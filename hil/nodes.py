@@ -7,7 +7,7 @@ Each shell owns a clock, a ``bus.transport.Port`` and a per-tick JSON lines file
 (``plant.jsonl`` / ``flight.jsonl``, flushed every tick, see ``hil.recorder``). ``hil run`` and
 ``hil up`` start them; they can also be started by hand on two machines sharing a CAN bus.
 
-Lockstep (DESIGN.md section 3): the plant is the time master: GYRO + SYNC(n), wait for
+Lockstep (docs/design.md section 3): the plant is the time master: GYRO + SYNC(n), wait for
 THR_CMD(n) (deadline ``--reply-timeout``; a miss applies the safe action), apply it at
 ``t_n`` + command latency, integrate to ``t_n+1``. Real time: the plant integrates on
 CLOCK_MONOTONIC and publishes each gyro sample when it is due; the flight runs the strict
@@ -21,7 +21,7 @@ Scheduler policy (without ``--rt-priority``): the plant SCHED_BATCH, the flight 
 (``_set_policy``), so on one CPU the plant does not interrupt a flight tick; the policy each
 node got is in its first record (``sched``).
 
-Safe states (DESIGN.md section 4), counts from the scenario's ``safety:`` block
+Safe states (docs/design.md section 4), counts from the scenario's ``safety:`` block
 (``hil.config.SafetyCfg``; ``--lost-after``, ``--heartbeat-lost-s`` and ``--gyro-lost-after``
 override them): the plant closes every valve (and manifold) when THR_CMD is missing for
 ``thr_cmd_lost_ticks`` ticks or, in real time, the flight heartbeat is silent for

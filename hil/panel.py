@@ -1,4 +1,4 @@
-"""`hil fault`: the fault panel, a third node on the bus (DESIGN.md section 2).
+"""`hil fault`: the fault panel, a third node on the bus (docs/design.md section 2).
 
 ``hil fault inject --thruster NAME --type stuck_on|fail_to_fire|degraded [--fraction F]
 [--at T] [--clear-at T]`` sends FAULT_CMD to the running plant and waits for its FAULT_ACK;

@@ -16,7 +16,7 @@ fault time, the detection that answered it (time, thruster and type named), late
 time minus fault time, the seed's latency (the scenario's
 ``expect.detections[].seed_latency_s``, "-" where the seed gives no figure; the verdict uses
 ``within_s``), whether the named thruster and type are right (a group "one of {i, j}" counts
-when it holds the faulted thruster, DESIGN.md 6.4), false alarms, the largest attitude error
+when it holds the faulted thruster, docs/design.md 6.4), false alarms, the largest attitude error
 and the verdict of the run's expectations (failures listed under the table). A fault answered
 only by a wrong detection shows that detection with correct = NO; none at all shows
 MISSED.

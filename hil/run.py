@@ -185,7 +185,7 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                         print(f"  t={r['t_s']:7.1f} s  {source}: {e}", flush=True)
                 if source == "plant" and killed_flight_at is not None and \
                         r["t_s"] >= killed_flight_at and procs["flight"].poll() is None:
-                    procs["flight"].kill()  # SIGKILL: the reliability check of DESIGN.md 10
+                    procs["flight"].kill()  # SIGKILL: the reliability check of docs/design.md 10
                     print(f"  t={r['t_s']:7.1f} s  hil: flight process killed (SIGKILL)",
                           flush=True)
             if new:

@@ -1,4 +1,4 @@
-"""Fault state of the plant (DESIGN.md 5.6): what is injected, when it is active, its effect.
+"""Fault state of the plant (docs/design.md 5.6): what is injected, when it is active, its effect.
 
 A fault is a validated ``FaultSpec`` with an activity window ``[t_on_s, t_off_s)``
 (``t_off_s = clear_t_s`` or infinity until cleared). Effects, queried by time:

@@ -50,7 +50,7 @@ def test_bus_load_independent_formula(capsys):
     got = {name: bps for name, bps, _ in bus_load(1_000_000)}
     assert got == expected
     total = sum(expected.values())
-    assert total / 1e6 < 0.05  # far below 100 % (DESIGN.md section 4)
+    assert total / 1e6 < 0.05  # far below 100 % (docs/design.md section 4)
     assert main(["dbc", "--load", "--bitrate", "1000000"]) == 0
     assert f"{total:.0f}" in capsys.readouterr().out
     assert "total" in load_table(500_000)

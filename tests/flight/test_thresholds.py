@@ -1,4 +1,4 @@
-"""Thresholds tool (DESIGN 6.4 step 6) and `hil thresholds`."""
+"""Thresholds tool (docs/design.md 6.4 step 6) and `hil thresholds`."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """`hil bench`, pure parts: figures from records, goals, sanity checks, table, JSON, hogs.
 
 Nothing here measures time: the figures come from synthetic per-tick records, and no test
-compares a figure with a time limit (STYLE.md habit 8).
+compares a figure with a time limit (docs/style.md habit 8).
 """
 
 from __future__ import annotations

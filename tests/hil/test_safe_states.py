@@ -1,4 +1,4 @@
-"""Safe states (DESIGN.md section 4, issue 5 item 4), without sockets or with python-can's
+"""Safe states (docs/design.md section 4, issue 5 item 4), without sockets or with python-can's
 in-process ``virtual`` bus.
 
 Flight: safe mode (no firing, FDIR_STATUS safe flag, an event) after ``gyro_lost_ticks`` ticks

@@ -75,7 +75,7 @@ def test_json_constants_reproduce_the_lags_by_quadrature(report_json: dict) -> N
 
 def test_json_impulses_equal_p_nom_times_tau_minus_3_ms(report_json: dict) -> None:
     """Every allowed duration is listed; for tau >= 50 ms the impulse is ``P_nom (tau - 3 ms)``
-    within 1 % (DESIGN.md 5.4); 0 ms gives 0; the 30 and 40 ms pulses fall short (they never
+    within 1 % (docs/design.md 5.4); 0 ms gives 0; the 30 and 40 ms pulses fall short (they never
     reach P_nom), which the table reports as a negative deviation."""
     rows = {row["on_ms"]: row for row in report_json["pulses"]}
     assert sorted(rows) == ALLOWED_MS
