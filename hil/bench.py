@@ -33,7 +33,7 @@ measured, 1 when one is missing or absurd (listed under the table), 2 on a usage
 
 While the runs go, this process (the supervisor: bus monitor, rerun recording) runs with
 SCHED_BATCH, so on one CPU its per-frame wake-ups do not preempt the flight software in the
-middle of a tick; the nodes set their own policies (``hil.nodes._set_policy``).
+middle of a tick; the nodes set their own policies (``hil.process_policy.set_policy``).
 """
 
 from __future__ import annotations
@@ -419,7 +419,7 @@ def where_here() -> dict[str, Any]:
 
 
 def _policy_name() -> str:
-    from hil.nodes import sched_policy
+    from hil.process_policy import sched_policy
 
     return sched_policy()
 
@@ -757,7 +757,8 @@ def compare_allocator(vehicle_name: str, ticks: int = 1000) -> dict[str, Any]:
     the clock, a system call under user-mode Linux, does not bias the ratio). Also the
     largest relative difference of the optimal cost between each solver and linprog.
     """
-    from flight.allocator import Allocator, linprog_solve
+    from flight.allocator import Allocator
+    from flight.lp import linprog_solve
     from hil.config import load_vehicle
 
     vehicle = load_vehicle(vehicle_name)

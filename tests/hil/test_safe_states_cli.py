@@ -12,11 +12,12 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import replace
 
 import pytest
 
 import hil.run
-from hil import nodes
+from hil import node_settings, node_shell, process_policy
 from hil.cli import main
 
 
@@ -103,7 +104,7 @@ def test_rt_reaches_the_node_command_lines(tmp_path) -> None:
     for node in ("flight", "plant"):
         cmd = hil.run._node_cmd(node, tmp_path / "s.yaml", tmp_path, args)
         assert cmd[-1] == "--rt-priority"
-        assert nodes.build_parser().parse_args(cmd[3:]).rt_priority  # after `-m hil.nodes`
+        assert node_settings.parse_settings(cmd[3:]).rt_priority  # after `-m hil.nodes`
 
 
 @pytest.mark.parametrize(("note", "event"), [
@@ -116,7 +117,7 @@ def test_rt_reaches_the_node_command_lines(tmp_path) -> None:
      "permitted), memory not locked (errno 1)"),
 ])
 def test_the_rt_event_says_what_was_refused(note, event) -> None:
-    assert nodes.realtime_event(note) == event
+    assert process_policy.realtime_event(note) == event
 
 
 def test_a_refused_sched_fifo_is_said(monkeypatch) -> None:
@@ -130,28 +131,29 @@ def test_a_refused_sched_fifo_is_said(monkeypatch) -> None:
             return -1
 
     asked: list[tuple] = []
-    monkeypatch.setattr(nodes.os, "sched_setscheduler", lambda *a: asked.append(a) or refuse())
+    monkeypatch.setattr(process_policy.os, "sched_setscheduler",
+                        lambda *a: asked.append(a) or refuse())
     monkeypatch.setattr(ctypes, "CDLL", lambda *a, **k: _Libc())
     monkeypatch.setattr(ctypes, "get_errno", lambda: 1)
-    note = nodes._try_realtime_priority("plant")
+    note = process_policy.try_realtime_priority("plant")
     assert asked[0][1] == os.SCHED_FIFO and asked[0][2].sched_priority == 40
     assert asked[1] == ("mlockall", 3)  # MCL_CURRENT | MCL_FUTURE
     assert note.endswith(", SCHED_FIFO refused (PermissionError: Operation not permitted), "
                          "memory not locked (errno 1)")
-    assert nodes.realtime_event(note).startswith("--rt refused: ")
-    assert nodes.RT_PRIORITY["flight"] > nodes.RT_PRIORITY["plant"]
+    assert process_policy.realtime_event(note).startswith("--rt refused: ")
+    assert process_policy.RT_PRIORITY["flight"] > process_policy.RT_PRIORITY["plant"]
 
 
 def test_the_rt_event_is_in_the_first_record(tmp_path) -> None:
     from hil.config import load_scenario
 
     scen = _scenario(tmp_path, "duration_s: 5\n")
-    args = nodes.build_parser().parse_args(
+    args = node_settings.parse_settings(
         ["flight", "--scenario", str(scen), "--out", str(tmp_path), "--interface", "virtual",
          "--channel", "rt-first-record", "--rt-priority"])
-    args.sched_note = "SCHED_OTHER, SCHED_FIFO refused (PermissionError: x), memory locked"
-    args.rt_event = nodes.realtime_event(args.sched_note)
-    first = nodes._first_record(load_scenario(scen), args, {"gyro_lost_ticks": 3})
+    note = "SCHED_OTHER, SCHED_FIFO refused (PermissionError: x), memory locked"
+    args = replace(args, sched_note=note, rt_event=process_policy.realtime_event(note))
+    first = node_shell.first_record(load_scenario(scen), args, {"gyro_lost_ticks": 3})
     assert first["sched"] == args.sched_note
     assert first["events"] == ["--rt partly refused: " + args.sched_note]
     assert first["config"]["vehicle"] == "generic"
