@@ -27,8 +27,9 @@ Solvers (``flight.allocator.solver``; the generic LP code is ``flight.lp``): ``s
 dense bounded dual simplex written for these small problems (3-7 rows, up to ~40 columns): with
 every cost ``r_n >= 0`` the all-off start is dual feasible, so no phase 1 is needed, and the
 basis is refined at the end by solving the basic system from the original data. ``highs`` is a
-HiGHS model built once and warm-started (row and column bounds changed each tick). ``linprog`` is ``scipy.optimize.linprog``. Any solver
-that fails to converge falls back to ``linprog``. The core reads no clock: timing is the caller's.
+HiGHS model built once and warm-started (row and column bounds changed each tick). ``linprog``
+is ``scipy.optimize.linprog``. Any solver that fails to converge falls back to ``linprog``. The
+core reads no clock: timing is the caller's.
 """
 
 from __future__ import annotations
