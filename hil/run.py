@@ -33,6 +33,7 @@ from hil.config import REPO_ROOT, load_scenario
 from hil.errors import BusError, UsageError
 from hil.recorder import RrdRecorder, merge_by_tick, read_jsonl
 from hil.summary import summarise
+from hil.timing import timing_summary
 
 INSIDE_UML_ENV = "HIL_INSIDE_UML"
 
@@ -208,8 +209,6 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         monitor.stop()
         for f in logs.values():
             f.close()
-    from hil.bench import timing_summary  # here: hil.bench imports this module
-
     # Everything the processes wrote, up to their last tick (also after a kill).
     plant_records = list(read_jsonl(out / "plant.jsonl"))
     flight_records = list(read_jsonl(out / "flight.jsonl"))
