@@ -102,3 +102,11 @@ def realtime_event(note: str) -> str:
     if fifo and locked:
         return f"--rt: {note}"
     return f"--rt {'partly refused' if fifo or locked else 'refused'}: {note}"
+
+
+def where_here() -> dict:
+    """Where this process runs: the kernel (native or user-mode Linux) and its CPUs."""
+    from hil.uml import in_uml
+
+    return {"kernel": "user-mode Linux" if in_uml() else "native kernel",
+            "cpus": os.cpu_count()}

@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from hil import bench, timing
+from hil import bench, bench_table, timing
 from hil.errors import UsageError
 
 H = 0.2
@@ -123,7 +123,7 @@ def good_report() -> dict:
 
 
 def test_a_complete_report_has_no_problem() -> None:
-    assert bench.check_figures(good_report()) == []
+    assert bench_table.check_figures(good_report()) == []
 
 
 @pytest.mark.parametrize(("mutate", "expected"), [
@@ -144,28 +144,28 @@ def test_a_complete_report_has_no_problem() -> None:
 def test_check_figures_names_the_missing_or_odd_figure(mutate, expected) -> None:
     r = good_report()
     mutate(r)
-    problems = bench.check_figures(r)
+    problems = bench_table.check_figures(r)
     assert problems and any(p.startswith(expected) for p in problems), problems
 
 
 def test_check_only_the_parts_measured() -> None:
     r = good_report()
     del r["lockstep"], r["bus"]
-    assert bench.check_figures(r, ("realtime", "allocator", "load")) == []
+    assert bench_table.check_figures(r, ("realtime", "allocator", "load")) == []
 
 
 def test_goals_are_information_with_the_bus_latency_in_the_latency_goal() -> None:
-    g = {x["goal"]: x for x in bench.goals(good_report())}
+    g = {x["goal"]: x for x in bench_table.goals(good_report())}
     s2a = g["sensor-to-actuator p99 < 5 ms + bus one-way p99"]
     assert s2a["limit"] == pytest.approx(5.9) and s2a["met"] is (s2a["value"] < 5.9)
     assert g["no overrun"]["met"] is False and g["lockstep >= 20x real time"]["met"] is True
-    assert bench.goals({})[0]["met"] is None  # nothing measured: no verdict either way
+    assert bench_table.goals({})[0]["met"] is None  # nothing measured: no verdict either way
 
 
 def test_table_names_every_figure_and_where() -> None:
     r = good_report()
-    r["goals"] = bench.goals(r)
-    text = bench.format_table(r)
+    r["goals"] = bench_table.goals(r)
+    text = bench_table.format_table(r)
     for needle in ("tick release jitter", "compute allocator", "compute I/O", "share of the",
                    "sensor-to-actuator", "lockstep speed (loop)", "round trip A->B->A",
                    "linprog / simplex", "bus load from the catalog", "native kernel",
@@ -215,4 +215,4 @@ def test_an_overrun_tick_is_a_figure_not_a_problem() -> None:
     r = good_report()
     r["realtime"]["tick_share"].update(max=1.3)  # one tick longer than the tick: counted
     r["realtime"]["compute_ms"].update(max=260.0)
-    assert bench.check_figures(r) == []
+    assert bench_table.check_figures(r) == []
