@@ -49,6 +49,7 @@ THRUSTERS_PER_FRAME = 8
 # 180 and 190 ms would leave less than the 30 ms minimum pause, 10 and 20 ms are below the
 # 30 ms minimum on-time.
 ALLOWED_ON_QUANTA = (0, *range(3, 18), 20)
+ON_QUANTUM_MS = 10  # THR_CMD on-durations are counted in these
 GYRO_RATE_LSB_RAD_S = 1e-7
 GYRO_RATE_LIMIT_RAD_S = 0.2
 NO_THRUSTER = 63  # "no thruster" in 6-bit thruster index fields

@@ -14,12 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from bus.catalog import DetectedFault, NodeState
+from bus.catalog import ON_QUANTUM_MS, NodeState
 from bus.catalog import Node as NodeId
-from bus.codec import FdirStatus, FlightTiming, Gyro, ThrCmd
+from bus.codec import FlightTiming, Gyro, ThrCmd
 from bus.protocol import FlightLockstep, HeartbeatSender, TickRequest
 from bus.transport import Port
 from common.units import DEG
+from hil.binding import command_quanta, fdir_status, manifold_mask
 from hil.config import Scenario
 from hil.node_settings import NodeSettings
 from hil.node_shell import Stop, _named, _xyz, first_record, say
@@ -115,10 +116,8 @@ class FlightShell:
             stage_ns[name] = t1 - t0
         out = fs.finish()
         t0 = t1
-        quanta = tuple(int(x) // 10 for x in out.on_ms)
-        if self.safe:
-            quanta = (0,) * len(quanta)
-        mask = sum(1 << m for m, o in enumerate(out.manifold_open) if o)
+        quanta = command_quanta(out.on_ms, self.safe)
+        mask = manifold_mask(out.manifold_open)
         seq = self.gyro.sample_seq if self.gyro else 0
         cmd = self._reply(n, quanta, mask, seq)
         if cmd is not None:
@@ -138,29 +137,22 @@ class FlightShell:
         t1 = clk()
         stage_ns["thr_cmd_out"] = t1 - t0
         t0 = t1
-        ftype = {"stuck_on": DetectedFault.STUCK_ON, "fail_to_fire": DetectedFault.FAIL_TO_FIRE}
-        closed = sum(1 << m for m, o in enumerate(out.manifold_open) if not o)
         if det is not None:
             self.last_det = det
-        last = self.last_det
-        g = last.group if last else ()
-        fdir = FdirStatus(
-            last.tick if last else 0, ftype.get(last.kind, DetectedFault.NONE) if last else 0,
-            g[0] if g else None, g[1] if len(g) > 1 else None,
-            closed, self.safe or out.safe_mode, 0)
+        fdir = fdir_status(self.last_det, out, self.safe)
         # FLIGHT_TIMING cannot carry the time of its own sending; the record's compute_s does.
         so_far_s = (clk() - t_start) / 1e9
         self.port.send(fdir, FlightTiming(n, min(so_far_s, 0.065), self.overruns % 256))
         t1 = clk()
         stage_ns["fdir_tm_out"] = t1 - t0
         compute_s = (t1 - t_start) / 1e9
-        self.thr_cmd_on_ms = 10 * sum(quanta) if cmd is not None else 0
+        self.thr_cmd_on_ms = ON_QUANTUM_MS * sum(quanta) if cmd is not None else 0
         self.record(n, out, detection, stage_ns, compute_s, jitter_s, rt)
 
     def _reply(self, n, quanta, mask, seq):
         if self.lock is not None:
             return self.lock.reply(n, quanta, mask, seq)
-        return ThrCmd(n, quanta, mask, seq)
+        return ThrCmd(n, quanta, mask, seq)  # real time: no lockstep state to keep
 
     def record(self, n, out, detection, stage_ns, compute_s, jitter_s, rt=None) -> None:
         thr_off = out.threshold_off

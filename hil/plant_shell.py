@@ -16,13 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from bus.catalog import AckReason, AckStatus, FaultAction, FaultKind, NodeState
+from bus.catalog import AckReason, AckStatus, FaultAction, NodeState
 from bus.catalog import Node as NodeId
 from bus.codec import FaultAck, FaultCmd, Gyro, ThrCmd
 from bus.protocol import CommandLost, DeadlineMissed, HeartbeatSender, PlantLockstep
 from bus.transport import Port
 from common.units import DEG
-from hil.config import FaultSpec, Scenario
+from hil.binding import FAULT_KIND_FROM_BUS, fault_spec, gyro_message, plant_command
+from hil.config import Scenario
 from hil.errors import FaultCommandError
 from hil.node_settings import NodeSettings
 from hil.node_shell import Stop, _named, _r6, _xyz, first_record, say
@@ -33,16 +34,6 @@ from hil.safe_states import FlightLinkWatch, safety_settings
 REALTIME_MAX_WAIT_S = 0.02  # the real-time plant wakes at least this often (see run_realtime)
 REALTIME_PRE_WAKE_S = 0.005  # ... and this long before each gyro sample
 REPEAT_WINDOW_S = 10.0  # an identical FAULT_CMD this soon is the panel's resend (not applied)
-
-
-_KIND_FROM_BUS = {
-    FaultKind.STUCK_ON: "stuck_on", FaultKind.FAIL_TO_FIRE: "fail_to_fire",
-    FaultKind.DEGRADED: "degraded", FaultKind.GYRO_SPIKE: "gyro_spike",
-    FaultKind.GYRO_BIAS_STEP: "gyro_bias_step", FaultKind.GYRO_FROZEN: "gyro_frozen",
-    FaultKind.GYRO_NOISE: "gyro_noise", FaultKind.BUS_DROP: "bus_drop",
-    FaultKind.BUS_DELAY: "bus_delay", FaultKind.BUS_CORRUPT: "bus_corrupt",
-    FaultKind.NODE_SILENT: "node_silent",
-}
 
 
 class PlantShell:
@@ -106,23 +97,14 @@ class PlantShell:
                          "t_on_s": round(e.t_on_s, 6), "t_s": round(e.t_off_s, 6)}
                         for e in changed)
             else:
-                kind = _KIND_FROM_BUS.get(m.kind)
-                if kind is None:
+                if m.kind not in FAULT_KIND_FROM_BUS:
                     raise FaultCommandError("fault: kind: expected a known kind, got none")
                 if m.thruster is not None and m.thruster >= self.n_thr:
                     status, reason = AckStatus.REJECTED, AckReason.BAD_THRUSTER
                 else:
-                    spec = FaultSpec(
-                        kind=kind, t_s=max(m.start_time_s, self.plant.t),
-                        clear_t_s=m.clear_time_s,
-                        thruster=None if m.thruster is None else self.names[m.thruster],
-                        fraction=m.fraction if kind in ("stuck_on", "degraded") else None,
-                        magnitude_rad_s=1e-3 if kind.startswith("gyro") and kind != "gyro_frozen"
-                        else None,
-                        node="flight" if kind.startswith("bus") or kind == "node_silent" else None,
-                    )
+                    spec = fault_spec(m, self.names, self.plant.t)
                     self.plant.inject(spec)
-                    self.events.append(f"fault injected by panel: {kind} "
+                    self.events.append(f"fault injected by panel: {spec.kind} "
                                        f"{spec.thruster or ''} at {spec.t_s:.2f} s")
         except (FaultCommandError, ValueError) as exc:
             status, reason = AckStatus.REJECTED, AckReason.BAD_FRACTION
@@ -142,8 +124,7 @@ class PlantShell:
             self.gyro_time[seq] = s.t_meas_s
             if t_pub_s is not None:
                 self.gyro_pub[seq] = t_pub_s
-            rate = np.clip(np.asarray(s.rate_B_rad_s, dtype=float), -0.2, 0.2)
-            g = Gyro(seq, tuple(float(x) for x in rate), int(s.status) or 1)
+            g = gyro_message(s)
             self.last_gyro = g
             out.append(g)
         if len(self.gyro_time) > 4096:
@@ -153,12 +134,11 @@ class PlantShell:
         return out
 
     def apply(self, cmd: ThrCmd, t_apply_s: float) -> None:
-        on_ms = np.asarray(cmd.on_quanta, dtype=float) * 10.0
+        on_ms, mask = plant_command(cmd, self.n_man)
         if on_ms.shape[0] != self.n_thr:
             self.events.append(f"THR_CMD rejected: {on_ms.shape[0]} thrusters, "
                                f"expected {self.n_thr}")
             return
-        mask = np.array([(cmd.manifold_enable >> m) & 1 for m in range(self.n_man)], dtype=bool)
         self.plant.apply_command(cmd.tick, t_apply_s, on_ms, mask)
         self.last_cmd_tick_s = t_apply_s
 
