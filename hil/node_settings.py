@@ -40,6 +40,7 @@ class NodeSettings:
     rt_priority: bool = False
     sched: Literal["auto", "other", "batch"] = "auto"
     bus_log: bool = False
+    start_after: str | None = None
     sched_note: str | None = None
     rt_event: str | None = None
 
@@ -111,4 +112,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scheduler policy without --rt-priority (auto: plant SCHED_BATCH, "
                         "flight SCHED_OTHER, see hil.process_policy.set_policy)")
     p.add_argument("--bus-log", action="store_true", help="write NODE.bus.log (candump format)")
+    p.add_argument("--start-after", metavar="FILE",
+                   help="set up, then wait until FILE exists before the first tick (hil run "
+                        "starts both processes at once and gives the plant the flight's "
+                        "ready file: their start-ups overlap, the first SYNC finds the flight "
+                        "listening)")
     return p

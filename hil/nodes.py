@@ -20,6 +20,10 @@ This module is the entry point only; the parts live beside it:
   not interrupt a flight tick), SCHED_FIFO and locked memory with ``--rt-priority``;
 * ``hil.node_shell``: what both shells share (stop flag, port, first record).
 
+``--start-after FILE``: the process sets up (imports, core, port), writes its ready file and
+waits for FILE before its first tick; ``hil run`` starts both processes at once and gives the
+plant the flight's ready file.
+
 Each node's first record carries ``config`` (scenario, vehicle and its file, thruster names,
 mode, bus, the safe-state settings it uses): ``hil fault`` learns the vehicle of a running
 ``hil up`` from it, and ``hil.summary`` puts the settings in ``summary.json``. With
@@ -31,6 +35,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -41,6 +46,15 @@ from hil.node_settings import parse_settings
 from hil.node_shell import Stop, open_port, say
 from hil.plant_shell import PlantShell
 from hil.process_policy import quiet_gc, realtime_event, set_policy, try_realtime_priority
+
+
+def wait_for_file(path: Path, stop: Stop, poll_s: float = 0.005) -> bool:
+    """Wait until ``path`` exists (True) or a stop signal came (False)."""
+    while not path.exists():
+        if stop():
+            return False
+        time.sleep(poll_s)
+    return True
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -63,6 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     shell = (PlantShell if settings.node == "plant" else FlightShell)(sc, port, out, settings)
     quiet_gc()
     (out / f"{settings.node}.ready").write_text(str(os.getpid()))
+    if settings.start_after and not wait_for_file(Path(settings.start_after), stop):
+        port.close()
+        return 0
     try:
         run = shell.run_lockstep if settings.mode == "lockstep" else shell.run_realtime
         return run(stop)

@@ -241,7 +241,7 @@ class PlantShell:
             extra = {"rt_factor": round((t_n + self.h) / max(time.monotonic() - t_wall0, 1e-9), 2),
                      "sync_to_cmd_s": latency, "deadline_misses": lock.deadline_misses}
             self.record(n, extra)
-        self.record_end(time.monotonic() - t_wall0, n_ticks, time.process_time() - cpu0)
+        self.record_end(time.monotonic() - t_wall0, n_ticks, time.process_time() - cpu0, t_wall0)
         return 0
 
     # -- real time ------------------------------------------------------------------------
@@ -319,7 +319,7 @@ class PlantShell:
                                       "published_s": _r6(self.gyro_pub.get(msg.gyro_seq)),
                                       "received_s": round(rx_sim, 6),
                                       "applied_s": round(t_apply, 6)})
-        self.record_end(time.monotonic() - t0, tick, time.process_time() - cpu0)
+        self.record_end(time.monotonic() - t0, tick, time.process_time() - cpu0, t0)
         return 0
 
     @staticmethod
@@ -330,13 +330,17 @@ class PlantShell:
             extra["series"] = {"timing/s2a_ms": {"s2a": max(s2a) * 1e3}}
         return extra
 
-    def record_end(self, wall_s: float, ticks: int, cpu_s: float | None = None) -> None:
+    def record_end(self, wall_s: float, ticks: int, cpu_s: float | None = None,
+                   t0_monotonic_s: float | None = None) -> None:
+        """The final record: the loop's wall and CPU time, and when the loop started
+        (``loop_t0_monotonic_s``, CLOCK_MONOTONIC: the supervisor's start-up figure)."""
         cpu = "" if cpu_s is None else f", {cpu_s:.1f} s CPU"
         self.events.append(f"plant done: {ticks} ticks, {self.plant.t:.1f} s simulated in "
                            f"{wall_s:.1f} s wall{cpu}")
         say("plant", self.events[-1])
         self.record(ticks, {"final": True, "wall_s": round(wall_s, 4),
                             "cpu_s": None if cpu_s is None else round(cpu_s, 4),
+                            "loop_t0_monotonic_s": t0_monotonic_s,
                             "last_gyro_seq": None if self.last_gyro is None
                             else self.last_gyro.sample_seq})
         self.rec.close()

@@ -3,9 +3,9 @@
 Each process appends one JSON object per tick to its own file in the run directory
 (``plant.jsonl``: the truth; ``flight.jsonl``: the flight software's view) and flushes it at
 once, so a killed process leaves every tick up to the kill on disk. The rerun recording
-(``run.rrd``) puts both on one timeline (``tick`` sequence and ``sim_time`` duration); the
-supervisor appends what the processes wrote every 50 ms and flushes, and ``build_rrd`` rebuilds
-it from the JSON lines after any crash.
+(``run.rrd``) puts both on one timeline (``tick`` sequence and ``sim_time`` duration);
+``build_rrd`` makes it from the JSON lines after the run (``hil run``), and with a live viewer
+(``hil up --viewer``) the supervisor appends what the processes wrote every 50 ms instead.
 
 A record is ``{"tick": n, "t_s": t, "series": {path: {label: value, ...}}, "events": [...]}``.
 Every series becomes one rerun entity holding one scalar per label (one line per label in the

@@ -158,3 +158,28 @@ def test_the_rt_event_is_in_the_first_record(tmp_path) -> None:
     assert first["events"] == ["--rt partly refused: " + args.sched_note]
     assert first["config"]["vehicle"] == "generic"
     assert first["config"]["bus"] == "virtual rt-first-record"
+
+
+def test_start_after_waits_for_the_file_or_a_stop(tmp_path) -> None:
+    from hil.nodes import wait_for_file
+
+    flag = tmp_path / "flight.ready"
+    stops = iter([False, False, True])
+    assert not wait_for_file(flag, lambda: next(stops), poll_s=0.0)
+    flag.write_text("1")
+    assert wait_for_file(flag, lambda: True)  # present: no wait, whatever the stop flag says
+    args = argparse.Namespace(mode="lockstep", interface="virtual", channel="x",
+                              rt_priority=False)
+    cmd = hil.run._node_cmd("plant", tmp_path / "s.yaml", tmp_path, args, start_after=flag)
+    assert node_settings.parse_settings(cmd[3:]).start_after == str(flag)
+
+
+def test_the_speed_figure_leaves_start_up_out() -> None:
+    # Oracle: hand arithmetic. 240 s simulated, the plant's loop took 10 s from its first tick
+    # (at monotonic 103 s); the supervisor started at 100 s and the whole run took 16 s.
+    recs = [{"tick": 0, "t_s": 0.2}, {"tick": 1200, "t_s": 240.0, "final": True,
+                                       "wall_s": 10.0, "loop_t0_monotonic_s": 103.0}]
+    f = hil.run.speed_figures(recs, 240.0, 16.0, 100.0)
+    assert f["speed_x_realtime"] == 24.0 and f["loop_wall_s"] == 10.0
+    assert f["startup_s"] == 3.0 and f["end_to_end_x_realtime"] == 15.0
+    assert "start-up" in f["speed_basis"] and "excluded" in f["speed_basis"]
