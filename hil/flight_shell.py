@@ -26,6 +26,7 @@ from hil.node_settings import NodeSettings
 from hil.node_shell import Stop, _named, _xyz, first_record, say
 from hil.process_policy import idle_gc
 from hil.recorder import JsonlWriter
+from hil.records import FlightRecord, detection_record
 from hil.safe_states import GyroLossWatch, safety_settings
 from hil.scheduler import (
     RateGroup,
@@ -126,10 +127,8 @@ class FlightShell:
         detection = None
         if det is not None:
             self.detections += 1
-            names = [self.names[i] for i in det.group]
-            thr = names[0] if len(names) == 1 else names
-            detection = {"t_s": round(n * self.h, 6), "tick": n, "thruster": thr,
-                         "type": det.kind, "source": det.source, "rho": float(det.rho)}
+            detection = detection_record(det, n, self.h, self.names)
+            thr = detection["thruster"]
             self.events.append(f"detection: {det.kind} of "
                                f"{thr if isinstance(thr, str) else 'one of ' + str(thr)} "
                                f"at {n * self.h:.1f} s ({det.source})")
@@ -156,7 +155,7 @@ class FlightShell:
 
     def record(self, n, out, detection, stage_ns, compute_s, jitter_s, rt=None) -> None:
         thr_off = out.threshold_off
-        rec = {
+        rec: FlightRecord = {
             "tick": n, "t_s": round(n * self.h, 6),
             "series": {
                 "flight/omega_meas_deg_s": _xyz(out.omega_meas, DEG),

@@ -14,8 +14,6 @@ import math
 import time
 from pathlib import Path
 
-import numpy as np
-
 from bus.catalog import AckReason, AckStatus, FaultAction, NodeState
 from bus.catalog import Node as NodeId
 from bus.codec import FaultAck, FaultCmd, Gyro, ThrCmd
@@ -28,7 +26,8 @@ from hil.errors import FaultCommandError
 from hil.node_settings import NodeSettings
 from hil.node_shell import Stop, _named, _r6, _xyz, first_record, say
 from hil.process_policy import idle_gc
-from hil.recorder import JsonlWriter, newly_active_faults
+from hil.recorder import JsonlWriter
+from hil.records import PlantRecord, newly_active_faults, truth_fields
 from hil.safe_states import FlightLinkWatch, safety_settings
 
 REALTIME_MAX_WAIT_S = 0.02  # the real-time plant wakes at least this often (see run_realtime)
@@ -152,7 +151,7 @@ class PlantShell:
     # -- recording ----------------------------------------------------------------------------
 
     def record(self, tick: int, extra: dict | None = None) -> None:
-        from flight.attitude import error_quaternion, rotation_angle, small_angle_vector
+        from flight.attitude import error_quaternion, small_angle_vector
 
         tr = self.plant.truth
         n_err = error_quaternion(self.target, tr.q_BO)
@@ -161,7 +160,7 @@ class PlantShell:
         for f in injected:
             self.events.append(f"fault active: {f['type']} {f['thruster'] or ''} "
                                f"at {f['t_s']:.2f} s")
-        rec = {
+        rec: PlantRecord = {
             "tick": tick, "t_s": round(tr.t_s, 9),
             "series": {
                 "truth/omega_deg_s": _xyz(tr.omega_BO_B_rad_s, DEG),
@@ -172,10 +171,7 @@ class PlantShell:
             },
             "events": self.events,
             "faults_injected": injected,
-            "att_err_deg": float(rotation_angle(n_err) * DEG),
-            "rate_err_deg_s": float(np.linalg.norm(tr.omega_BO_B_rad_s) * DEG),
-            "fuel_kg": float(np.sum(tr.fuel_kg)),
-            "dv_B_m_s": [float(x) for x in tr.dv_B_m_s],
+            **truth_fields(tr, n_err),
             "safe": self.safe,
             "bus": self.port.counts(),
         }

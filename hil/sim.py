@@ -26,7 +26,7 @@ from bus.codec import Gyro
 from common.units import DEG
 from hil.binding import gyro_message, over_the_wire, plant_command, thr_cmd
 from hil.config import Scenario, load_scenario
-from hil.recorder import newly_active_faults
+from hil.records import detection_record, newly_active_faults, truth_fields
 from hil.summary import summarise
 
 
@@ -46,7 +46,7 @@ class SimRun:
 def simulate(sc: Scenario | str | Path, *, keep: bool = False,
              on_tick: Callable[[int, Any, Any], None] | None = None) -> SimRun:
     """Run scenario ``sc`` to its end in this process; see the module doc."""
-    from flight.attitude import error_quaternion, rotation_angle
+    from flight.attitude import error_quaternion
     from flight.software import FlightSoftware
     from plant.core import Plant
 
@@ -85,18 +85,11 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
         injected = newly_active_faults(plant.faults.entries, reported, tr.t_s)
         plant_recs.append({
             "tick": n, "t_s": round(tr.t_s, 9), "faults_injected": injected,
-            "att_err_deg": float(rotation_angle(error_quaternion(target, tr.q_BO)) * DEG),
-            "rate_err_deg_s": float(np.linalg.norm(tr.omega_BO_B_rad_s) * DEG),
+            **truth_fields(tr, error_quaternion(target, tr.q_BO)),
             "omega_deg_s": [float(x) * DEG for x in tr.omega_BO_B_rad_s],
-            "fuel_kg": float(np.sum(tr.fuel_kg)),
-            "dv_B_m_s": [float(x) for x in tr.dv_B_m_s],
         })
-        det = None
-        if out.detection is not None:
-            d = out.detection
-            grp = [names[i] for i in d.group]
-            det = {"t_s": round(t_n, 6), "tick": n, "thruster": grp[0] if len(grp) == 1 else grp,
-                   "type": d.kind, "source": d.source, "rho": float(d.rho)}
+        det = (None if out.detection is None
+               else detection_record(out.detection, n, h, names))
         flight_recs.append({"tick": n, "t_s": round(t_n, 6), "detection": det})
         if keep:
             outputs.append(out)

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from hil.records import FlightRecord, PlantRecord
 from hil.summary import percentiles_ms
 
 WARMUP_TICKS = 5  # 1 s at 5 Hz: imports, first solves, page faults
@@ -31,8 +32,8 @@ def _wrap_ge(a: int, b: int) -> bool:
     return ((a - b) & 0xFFFF) < 0x8000
 
 
-def realtime_figures(plant_records: list[dict], flight_records: list[dict], tick_s: float,
-                     warmup_ticks: int = WARMUP_TICKS) -> dict[str, Any]:
+def realtime_figures(plant_records: list[PlantRecord], flight_records: list[FlightRecord],
+                     tick_s: float, warmup_ticks: int = WARMUP_TICKS) -> dict[str, Any]:
     """Timing figures of a real-time run from the per-tick records of both processes.
 
     Flight ticks before ``warmup_ticks`` and after the plant's last gyro sample are left out
@@ -94,7 +95,7 @@ def realtime_figures(plant_records: list[dict], flight_records: list[dict], tick
     }
 
 
-def timing_summary(plant_records: list[dict], flight_records: list[dict],
+def timing_summary(plant_records: list[PlantRecord], flight_records: list[FlightRecord],
                    tick_s: float) -> dict[str, Any]:
     """The per-run timing block for ``summary.json`` (``hil run``): no warm-up cut, so every
     tick of the run counts. Empty dict for a lockstep run (no real-time figures)."""
@@ -106,7 +107,8 @@ def timing_summary(plant_records: list[dict], flight_records: list[dict],
     return {k: f[k] for k in keep}
 
 
-def lockstep_figures(plant_records: list[dict], summary: dict | None = None) -> dict[str, Any]:
+def lockstep_figures(plant_records: list[PlantRecord],
+                     summary: dict | None = None) -> dict[str, Any]:
     """Speed of a lockstep run: the loop (plant's own wall time) and end to end."""
     ticks = [r for r in plant_records if not r.get("final")]
     final = next((r for r in plant_records if r.get("final")), {})
