@@ -64,3 +64,15 @@ def test_allowed_imports_pass_and_a_module_cycle_is_found(tmp_path) -> None:
     assert violations(root) == []
     assert module_cycles(root) == [["hil.a", "hil.b"]]
     assert module_cycles(root, lazy=False) == []
+
+
+def test_importing_the_cores_loads_no_yaml_no_bus_and_no_shell() -> None:
+    # A fresh interpreter: what `import flight.software, plant.core` really loads.
+    import subprocess
+    import sys
+
+    code = ("import sys, flight.software, plant.core; "
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'yaml', 'hil', 'bus', 'can'}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[]"
