@@ -23,7 +23,7 @@ from common.units import DEG
 from hil.binding import command_quanta, fdir_status, manifold_mask
 from hil.config import Scenario
 from hil.node_settings import NodeSettings
-from hil.node_shell import Stop, _named, _xyz, first_record, say
+from hil.node_shell import Stop, first_record, named_values, say, xyz_values
 from hil.process_policy import idle_gc
 from hil.recorder import JsonlWriter
 from hil.records import FlightRecord, detection_record
@@ -158,15 +158,15 @@ class FlightShell:
         rec: FlightRecord = {
             "tick": n, "t_s": round(n * self.h, 6),
             "series": {
-                "flight/omega_meas_deg_s": _xyz(out.omega_meas, DEG),
-                "flight/omega_est_deg_s": _xyz(out.omega_est, DEG),
-                "flight/omega_pred_deg_s": _xyz(out.omega_pred, DEG),
-                "flight/residual_deg_s": _xyz(out.residual, DEG),
-                "flight/attitude_error_deg": _xyz(out.att_err_rad, DEG),
-                "flight/rho_on": _named(self.names, out.rho_on),
-                "flight/rho_off": _named(self.names, out.rho_off),
+                "flight/omega_meas_deg_s": xyz_values(out.omega_meas, DEG),
+                "flight/omega_est_deg_s": xyz_values(out.omega_est, DEG),
+                "flight/omega_pred_deg_s": xyz_values(out.omega_pred, DEG),
+                "flight/residual_deg_s": xyz_values(out.residual, DEG),
+                "flight/attitude_error_deg": xyz_values(out.att_err_rad, DEG),
+                "flight/rho_on": named_values(self.names, out.rho_on),
+                "flight/rho_off": named_values(self.names, out.rho_off),
                 "flight/thresholds": {"off": thr_off, "on": -out.threshold_on},
-                "flight/on_ms": _named(self.names, out.on_ms),
+                "flight/on_ms": named_values(self.names, out.on_ms),
                 "flight/compute_ms": {k: v / 1e6 for k, v in stage_ns.items()},
             },
             "events": self.events,

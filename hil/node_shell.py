@@ -17,15 +17,18 @@ from hil.node_settings import NodeSettings
 XYZ = ("x", "y", "z")
 
 
-def _r6(x: float | None) -> float | None:
+def round6(x: float | None) -> float | None:
+    """A time for a record, to the microsecond (None stays None)."""
     return None if x is None else round(x, 6)
 
 
-def _xyz(v, scale: float = 1.0) -> dict[str, float]:
+def xyz_values(v, scale: float = 1.0) -> dict[str, float]:
+    """A 3-vector times ``scale`` as a series' ``{"x", "y", "z"}`` values."""
     return {k: float(v[i]) * scale for i, k in enumerate(XYZ)}
 
 
-def _named(names, values) -> dict[str, float]:
+def named_values(names, values) -> dict[str, float]:
+    """Per-thruster values as a series' ``{name: value}``."""
     return {n: float(x) for n, x in zip(names, values, strict=True)}
 
 

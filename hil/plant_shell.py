@@ -24,7 +24,7 @@ from hil.binding import FAULT_KIND_FROM_BUS, fault_spec, gyro_message, plant_com
 from hil.config import Scenario
 from hil.errors import FaultCommandError
 from hil.node_settings import NodeSettings
-from hil.node_shell import Stop, _named, _r6, _xyz, first_record, say
+from hil.node_shell import Stop, first_record, named_values, round6, say, xyz_values
 from hil.process_policy import idle_gc
 from hil.recorder import JsonlWriter
 from hil.records import PlantRecord, newly_active_faults, truth_fields
@@ -163,11 +163,11 @@ class PlantShell:
         rec: PlantRecord = {
             "tick": tick, "t_s": round(tr.t_s, 9),
             "series": {
-                "truth/omega_deg_s": _xyz(tr.omega_BO_B_rad_s, DEG),
-                "truth/omega_BI_deg_s": _xyz(tr.omega_B_rad_s, DEG),  # as flight/omega_meas
-                "truth/attitude_error_deg": _xyz(att),
-                "truth/thrust_n": _named(self.names, tr.thrust_n),
-                "truth/flex_gyro_deg_s": _xyz(tr.flex_rate_gyro_B_rad_s, DEG),
+                "truth/omega_deg_s": xyz_values(tr.omega_BO_B_rad_s, DEG),
+                "truth/omega_BI_deg_s": xyz_values(tr.omega_B_rad_s, DEG),  # as flight/omega_meas
+                "truth/attitude_error_deg": xyz_values(att),
+                "truth/thrust_n": named_values(self.names, tr.thrust_n),
+                "truth/flex_gyro_deg_s": xyz_values(tr.flex_rate_gyro_B_rad_s, DEG),
             },
             "events": self.events,
             "faults_injected": injected,
@@ -312,7 +312,7 @@ class PlantShell:
                         s2a.append(t_apply - t_meas)
                         chain.append({"tick": msg.tick, "gyro_seq": msg.gyro_seq,
                                       "sample_s": round(t_meas, 6),
-                                      "published_s": _r6(self.gyro_pub.get(msg.gyro_seq)),
+                                      "published_s": round6(self.gyro_pub.get(msg.gyro_seq)),
                                       "received_s": round(rx_sim, 6),
                                       "applied_s": round(t_apply, 6)})
         self.record_end(time.monotonic() - t0, tick, time.process_time() - cpu0, t0)
