@@ -2,7 +2,8 @@
 
 Prints p50 / p99 / max per allocation for each solver and ``scipy.optimize.linprog`` (HiGHS) on
 the same LP problems in the same run, and the ratio. Garbage collection as in the flight process
-(``hil.nodes.quiet_gc``/``idle_gc``: collected every 10 ticks outside the timed call). Vehicle:
+(``hil.process_policy.quiet_gc``/``idle_gc``: collected every 10 ticks outside the timed
+call). Vehicle:
 ``orel`` (30 thrusters) when its file exists, else a synthetic 30-thruster set. A figure, not a
 test: nothing here fails on speed.
 ``hil bench`` reports the same comparison (``hil.bench.compare_allocator``, the same demands).
@@ -21,10 +22,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from flight.allocator import Allocator, linprog_solve  # noqa: E402
+from flight.allocator import Allocator  # noqa: E402
+from flight.lp import linprog_solve  # noqa: E402
 from hil.bench import demand_stream  # noqa: E402
 from hil.config import VEHICLE_DIR, load_vehicle  # noqa: E402
-from hil.nodes import idle_gc, quiet_gc  # noqa: E402
+from hil.process_policy import idle_gc, quiet_gc  # noqa: E402
 
 
 def _synthetic():

@@ -4,9 +4,9 @@
 
 Prints p50/p99/max per stage and for the whole tick, and the share of the tick used. The
 plant runs in the same process (its time is not counted). Garbage collection as in the flight
-process (``hil.nodes.quiet_gc``/``idle_gc``: start-up frozen, collected every 10 ticks after the
-tick); ``--auto-gc`` keeps Python's automatic collection to show what that costs. A benchmark,
-not a test.
+process (``hil.process_policy.quiet_gc``/``idle_gc``: start-up frozen, collected every 10 ticks
+after the tick); ``--auto-gc`` keeps Python's automatic collection to show what that costs. A
+benchmark, not a test.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 
 from flight.software import FlightSoftware
 from hil.config import AttitudeCfg, InitialCfg, load_vehicle
-from hil.nodes import idle_gc, quiet_gc
+from hil.process_policy import idle_gc, quiet_gc
 from plant.core import Plant
 
 

@@ -3,7 +3,7 @@
 Vehicle ``orel`` (30 thrusters, 2 manifolds; its two flex modes, or two added here if the file
 has none), a typical command pattern (every tick a few thrusters pulse with varying durations,
 as the phase-plane controller does in a dead zone), the gyro sampled every tick. Prints the step,
-the figures and the machine. A benchmark prints; it asserts nothing (STYLE.md habit 8).
+the figures and the machine. A benchmark prints; it asserts nothing (docs/style.md habit 8).
 
     .venv/bin/python bench/bench_plant.py [--vehicle orel] [--seconds 120] [--steps 0.01 0.001]
                                           [--repeat 5]

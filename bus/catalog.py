@@ -1,4 +1,4 @@
-"""The CAN message catalog: the single source of truth for the bus (DESIGN.md section 4).
+"""The CAN message catalog: the single source of truth for the bus (docs/design.md section 4).
 
 Everything else is generated from the tables below: the DBC file (``bus/dbc.py``), the codecs
 (``bus/codec.py``), the receiver's checks (``bus/receiver.py``) and the bus-load figures.
@@ -35,20 +35,21 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-from hil.errors import CatalogError
+from bus.errors import CatalogError
 
 BITRATE_BPS = 1_000_000
 FRAME_BYTES = 8
-TICK_S = 0.2  # flight tick (major frame), DESIGN.md section 3
+TICK_S = 0.2  # flight tick (major frame), docs/design.md section 3
 GYRO_PERIOD_S = 0.02  # GYRO output period in real-time mode (50 Hz)
 HEARTBEAT_PERIOD_S = 0.5
 N_THRUSTERS_MAX = 32
 N_MANIFOLDS_MAX = 4
 THRUSTERS_PER_FRAME = 8
-# Allowed on-durations per tick in 10 ms quanta: {0, 30..170, 200} ms (DESIGN.md section 3):
+# Allowed on-durations per tick in 10 ms quanta: {0, 30..170, 200} ms (docs/design.md section 3):
 # 180 and 190 ms would leave less than the 30 ms minimum pause, 10 and 20 ms are below the
 # 30 ms minimum on-time.
 ALLOWED_ON_QUANTA = (0, *range(3, 18), 20)
+ON_QUANTUM_MS = 10  # THR_CMD on-durations are counted in these
 GYRO_RATE_LSB_RAD_S = 1e-7
 GYRO_RATE_LIMIT_RAD_S = 0.2
 NO_THRUSTER = 63  # "no thruster" in 6-bit thruster index fields
@@ -64,7 +65,7 @@ class Node(IntEnum):
 
 
 class FaultKind(IntEnum):
-    """Fault kinds a FAULT_CMD can inject (DESIGN.md section 5.6). 0 is reserved for 'none'."""
+    """Fault kinds a FAULT_CMD can inject (docs/design.md section 5.6). 0 is reserved for 'none'."""
 
     NONE = 0
     STUCK_ON = 1
@@ -103,7 +104,7 @@ class AckReason(IntEnum):
 
 
 class DetectedFault(IntEnum):
-    """Fault type in FDIR_STATUS (DESIGN.md section 6.4)."""
+    """Fault type in FDIR_STATUS (docs/design.md section 6.4)."""
 
     NONE = 0
     STUCK_ON = 1

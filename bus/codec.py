@@ -1,4 +1,4 @@
-"""Typed bus messages and their pure encode/decode to CAN frames (DESIGN.md section 4).
+"""Typed bus messages and their pure encode/decode to CAN frames (docs/design.md section 4).
 
 One frozen dataclass per logical message (``Sync``, ``Gyro``, ``ThrCmd``, ``FdirStatus``,
 ``FaultCmd``, ``FaultAck``, ``FlightTiming``, ``Heartbeat``). ``encode(msg)`` returns the
@@ -33,7 +33,7 @@ from bus.catalog import (
     NodeState,
     SignalDef,
 )
-from hil.errors import EncodeError
+from bus.errors import EncodeError
 
 
 @dataclass(frozen=True)

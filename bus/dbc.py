@@ -1,4 +1,4 @@
-"""DBC generation from the catalog, through cantools' database model (DESIGN.md section 4).
+"""DBC generation from the catalog, through cantools' database model (docs/design.md section 4).
 
 ``build_database()`` turns ``bus.catalog.CATALOG`` into ``cantools.database.can.Database``
 (one Message per frame, with the E2E header as two ordinary signals so that any DBC tool

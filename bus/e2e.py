@@ -1,4 +1,4 @@
-"""End-to-end protection of every frame (DESIGN.md section 4).
+"""End-to-end protection of every frame (docs/design.md section 4).
 
 Layout of AUTOSAR E2E profile 1 (CRC in byte 0, 4-bit alive counter in the low nibble of
 byte 1, data ID mode "both bytes"), with the counter range of profile 2 (0..15, wrapping):

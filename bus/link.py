@@ -1,4 +1,4 @@
-"""A fake bus between sans-IO endpoints, for tests without sockets (STYLE.md: h11).
+"""A fake bus between sans-IO endpoints, for tests without sockets (docs/style.md: h11).
 
 Frames take the full path (encode, E2E protect, classify, assemble) with a fixed latency in
 the caller's time, and can be dropped or corrupted by a hook, so the protocol machines and

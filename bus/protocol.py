@@ -1,15 +1,15 @@
-"""Lockstep and heartbeat protocols as sans-IO state machines (DESIGN.md sections 3 and 4).
+"""Lockstep and heartbeat protocols as sans-IO state machines (docs/design.md sections 3 and 4).
 
 No sockets, no clocks: every call takes the time ``now_s`` (float seconds, any one clock the
 caller chooses) and returns events (frozen dataclasses) and messages to send. The process
 shells move messages between these machines and a ``bus.transport.Port``; tests move them
 through ``bus.link.FakeLink``.
 
-Lockstep (DESIGN.md section 3): the plant is the time master. ``PlantLockstep.begin_tick``
+Lockstep (docs/design.md section 3): the plant is the time master. ``PlantLockstep.begin_tick``
 gives SYNC(n) to send; THR_CMD(n) must arrive within ``reply_timeout_s``; ``poll`` at or
 after the deadline turns a missing command into ``DeadlineMissed`` and the safe action (all
 thrusters off, manifolds as commanded last); after ``lost_after_misses`` consecutive misses
-``CommandLost`` and the safe action closes every manifold (DESIGN.md section 4: loss of
+``CommandLost`` and the safe action closes every manifold (docs/design.md section 4: loss of
 THR_CMD for N ticks puts the plant's valves closed). ``FlightLockstep`` turns SYNC(n) into a
 ``TickRequest`` and the computed command into THR_CMD(n).
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from bus.catalog import HEARTBEAT_PERIOD_S, NodeState
 from bus.catalog import Node as NodeId
 from bus.codec import Gyro, Heartbeat, Message, Sync, ThrCmd
-from hil.errors import ConfigError
+from common.errors import ConfigError
 
 # --- events -----------------------------------------------------------------------------
 

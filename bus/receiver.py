@@ -1,6 +1,6 @@
 """Sans-IO receiver: classify every frame, count what is wrong, assemble frame sets.
 
-``Receiver.classify(frame, now_s) -> Verdict`` (DESIGN.md section 4). Checks, in order:
+``Receiver.classify(frame, now_s) -> Verdict`` (docs/design.md section 4). Checks, in order:
 
 1. ``unknown_id``: identifier not in the catalog (or extended / FD / remote / error frame);
 2. ``wrong_length``: not 8 data bytes;

@@ -1,4 +1,4 @@
-"""Thin transport over python-can: ``open_bus``, ``Port``, ``BusLogger`` (DESIGN.md section 4).
+"""Thin transport over python-can: ``open_bus``, ``Port``, ``BusLogger`` (docs/design.md section 4).
 
 Clocks. python-can stamps received frames in wall-clock seconds: socketcan with the kernel's
 receive timestamp (CLOCK_REALTIME), ``virtual`` and ``udp_multicast`` with ``time.time()``.
@@ -8,24 +8,26 @@ Code that schedules on the monotonic clock converts explicitly with ``Port.to_mo
 (offset sampled once when the port opens; wall-clock steps after that show up as an error of
 the same size, which is why the conversion is explicit and never silent).
 
-System calls. On socketcan a ``Port`` talks to python-can's socket directly: a message of
-several frames (THR_CMD: 5, GYRO: 2) goes out in one ``sendmmsg`` (the receiver wakes once
-for the whole set), a single frame in one ``send`` (python-can's ``send`` adds a ``select``
-and two clock reads per frame); ``poll`` is one ``select`` followed by non-blocking
-``recvmsg`` until the queue is empty (python-can's ``recv`` adds a ``select`` and a clock
-read per frame). Under user-mode Linux every system call, clock reads included, costs tens of
-microseconds: sending THR_CMD went from 1.2 ms to 0.27 ms there (``bench/bench_transport.py``
-measures both paths). Every other interface goes through python-can unchanged.
+Backends. ``open_bus`` opens python-can buses by name. The ``socketcan`` interface opens this
+project's backend ``hil_socketcan`` (``bus.socketcan_fast.FastSocketcanBus``, a python-can
+``SocketcanBus`` registered through python-can's ``can.interface`` entry points), which also
+offers batch frame I/O (``FrameBus``: a message of several frames in one ``sendmmsg``, a
+receive queue drained with one ``select``); a ``Port`` uses that when its bus offers it, and
+python-can's ``send``/``recv`` otherwise. Every other interface goes through python-can
+unchanged.
+
+Send path. Every frame a ``Port`` sends passes ``Port.send_hook`` (when set) after encoding
+and E2E protection, just before the wire: the one place where bus faults (drop, delay,
+corrupt) attach.
 """
 
 from __future__ import annotations
 
 import collections
-import select
-import socket
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import can
 from pydantic import BaseModel, ConfigDict, Field
@@ -33,8 +35,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from bus.catalog import BITRATE_BPS
 from bus.codec import Frame, Message, encode
 from bus.e2e import Protector
+from bus.errors import BusError
 from bus.receiver import Receiver, Verdict
-from hil.errors import BusError
 
 CLOCK = "realtime"
 
@@ -53,6 +55,23 @@ class BusConfig(BaseModel):
 
 
 _HINTS = {"socketcan": "; run `hil vcan up` or `hil vcan exec`"}
+# Configured interface name -> the python-can backend (by its registered name) that opens it.
+BACKENDS = {"socketcan": "hil_socketcan"}
+
+
+@runtime_checkable
+class FrameBus(Protocol):
+    """A python-can bus that also sends and receives this project's ``Frame`` in batches
+    (``bus.socketcan_fast.FastSocketcanBus``)."""
+
+    def send_frame(self, fr: Frame) -> bool: ...
+
+    def send_frames(self, frames: list[Frame]) -> int: ...
+
+    def drain_frames(self, timeout_s: float, got: list, with_messages: bool = False) -> None: ...
+
+
+SendHook = Callable[[list[Frame]], list[Frame]]
 
 
 def open_bus(cfg: BusConfig | None = None) -> can.BusABC:
@@ -64,7 +83,8 @@ def open_bus(cfg: BusConfig | None = None) -> can.BusABC:
     if cfg.fd:
         kwargs["fd"] = True
     try:
-        return can.Bus(interface=cfg.interface, channel=cfg.channel, **kwargs)
+        return can.Bus(interface=BACKENDS.get(cfg.interface, cfg.interface),
+                       channel=cfg.channel, **kwargs)
     except (OSError, can.CanError, ImportError, ValueError, NotImplementedError) as exc:
         hint = _HINTS.get(cfg.interface, "")
         raise BusError(
@@ -130,7 +150,8 @@ class Port:
     clock = CLOCK
 
     def __init__(
-        self, bus: can.BusABC, receiver: Receiver | None = None, logger: BusLogger | None = None
+        self, bus: can.BusABC, receiver: Receiver | None = None, logger: BusLogger | None = None,
+        send_hook: SendHook | None = None,
     ):
         self.bus = bus
         self.receiver = receiver or Receiver()
@@ -139,7 +160,11 @@ class Port:
         self.tx_frames = 0
         self.tx_errors = 0
         self.monotonic_offset_s = time.monotonic() - time.time()
-        self._raw = _RawSocketcan.wrap(bus)
+        # Batch frame I/O where the bus offers it (not on a socket bound to every interface).
+        self._raw: FrameBus | None = (
+            bus if isinstance(bus, FrameBus) and getattr(bus, "channel", None) != "" else None)
+        # The frames about to go on the wire -> the frames that do (see the module doc).
+        self.send_hook = send_hook
         # udp_multicast loops every datagram back to its sender: remember what we sent and drop
         # the first matching frame received (loopback keeps the send order; with the alive
         # counter and CRC, a peer's frame equal to one of ours in flight cannot occur).
@@ -173,8 +198,10 @@ class Port:
         full, interface down) is counted in ``tx_errors``, not raised: the peer sees a gap.
         """
         frames = [fr for msg in msgs for fr in self.protect(msg)]
+        if self.send_hook is not None:
+            frames = self.send_hook(frames)
         if self._raw is not None and len(frames) > 1:
-            sent = self._raw.send_many(frames)
+            sent = self._raw.send_frames(frames)
             self.tx_frames += sent
             self.tx_errors += len(frames) - sent
             if self.logger:
@@ -184,14 +211,21 @@ class Port:
             return sent
         sent = 0
         for fr in frames:
-            if self.send_frame(fr):
+            if self._put(fr):
                 sent += 1
         return sent
 
     def send_frame(self, fr: Frame) -> bool:
-        """Send one frame as is (tests use it to inject corrupted frames)."""
+        """Send one frame as is (tests use it to inject corrupted frames), through the hook;
+        False when it did not go out (or the hook dropped it)."""
+        frames = [fr] if self.send_hook is None else self.send_hook([fr])
+        sent = [self._put(f) for f in frames]
+        return bool(sent) and all(sent)
+
+    def _put(self, fr: Frame) -> bool:
+        """One frame on the wire, counted in ``tx_frames`` or ``tx_errors``."""
         if self._raw is not None:
-            ok = self._raw.send(fr)
+            ok = self._raw.send_frame(fr)
             if ok and self.logger:
                 self.logger.log(to_can_message(fr, time.time()))
         else:
@@ -216,7 +250,7 @@ class Port:
         got: list[tuple[Frame, can.Message | None]] = []
         try:
             if self._raw is not None:
-                self._raw.drain(timeout_s, got, with_messages=self.logger is not None)
+                self._raw.drain_frames(timeout_s, got, with_messages=self.logger is not None)
             else:
                 self._drain_python_can(timeout_s, got)
         except (can.CanError, OSError) as exc:
@@ -255,146 +289,3 @@ class Port:
         if self.logger:
             self.logger.close()
         self.bus.shutdown()
-
-
-class _RawSocketcan:
-    """python-can's SocketCAN socket used directly: fewer system calls per frame.
-
-    ``send`` is one non-blocking ``send(2)`` (a full queue is a failed send, as python-can's
-    ``send`` without a timeout). ``drain`` is one ``select(2)`` (none when ``timeout_s`` is 0)
-    and then non-blocking ``recvmsg(2)`` until the queue is empty; frames keep the kernel's
-    receive time stamp (CLOCK_REALTIME, ``SO_TIMESTAMPNS`` as python-can sets it).
-    """
-
-    def __init__(self, sock: socket.socket, mod: Any) -> None:
-        self.sock = sock
-        self._mod = mod
-        self._dontwait = socket.MSG_DONTWAIT
-        self._ancillary = mod.RECEIVED_ANCILLARY_BUFFER_SIZE
-        self._mtu = mod.constants.CANFD_MTU
-        self._ts = mod.RECEIVED_TIMESTAMP_STRUCT
-        self._hdr = mod.CAN_FRAME_HEADER_STRUCT
-        self._mm: _Sendmmsg | None | bool = False  # made on first use (buffers of this port)
-        self._eff, self._rtr, self._err = (mod.constants.CAN_EFF_FLAG, mod.constants.CAN_RTR_FLAG,
-                                           mod.constants.CAN_ERR_FLAG)
-
-    @classmethod
-    def wrap(cls, bus: can.BusABC) -> _RawSocketcan | None:
-        try:
-            from can.interfaces.socketcan import socketcan as mod
-        except ImportError:  # not Linux
-            return None
-        if not isinstance(bus, mod.SocketcanBus) or not isinstance(
-                getattr(bus, "socket", None), socket.socket) or bus.channel == "":
-            return None
-        return cls(bus.socket, mod)
-
-    def send(self, fr: Frame) -> bool:
-        data = self._wire(fr)
-        try:
-            return self.sock.send(data, self._dontwait) == len(data)
-        except OSError:  # ENOBUFS / EAGAIN (queue full), ENETDOWN (interface down)
-            return False
-
-    def send_many(self, frames: list[Frame]) -> int:
-        """All frames in one ``sendmmsg(2)`` (the receiver gets the set at once); frames sent.
-
-        Falls back to one ``send`` per frame where ``sendmmsg`` is not available (or for CAN
-        FD frames). Frames the kernel did not take are not retried: the caller counts them.
-        """
-        if self._mm is False:
-            self._mm = _Sendmmsg.create()
-        mm = self._mm
-        if mm is None or len(frames) > mm.slots or any(f.is_fd or len(f.data) > 8
-                                                       for f in frames):
-            n = 0
-            for fr in frames:
-                if not self.send(fr):
-                    break
-                n += 1
-            return n
-        return mm.send(self.sock.fileno(), [self._wire(fr) for fr in frames])
-
-    def _wire(self, fr: Frame) -> bytes:
-        if fr.is_fd or len(fr.data) > 8:
-            data = self._mod.build_can_frame(to_can_message(fr))
-        else:
-            can_id = fr.arbitration_id | (self._eff if fr.is_extended_id else 0)
-            data = self._hdr.pack(can_id, len(fr.data), 0, len(fr.data)) + \
-                bytes(fr.data).ljust(8, b"\x00")
-        return data
-
-    def drain(self, timeout_s: float, got: list[tuple[Frame, can.Message | None]],
-              with_messages: bool = False) -> None:
-        """Append every queued frame to ``got`` (with its python-can message for a logger)."""
-        if timeout_s > 0 and not select.select([self.sock], [], [], timeout_s)[0]:
-            return
-        while True:
-            try:
-                cf, anc, _flags, _addr = self.sock.recvmsg(self._mtu, self._ancillary,
-                                                            self._dontwait)
-            except BlockingIOError:
-                return
-            can_id, dlc, _fl, data = self._mod.dissect_can_frame(cf)
-            ts = 0.0
-            if anc:
-                sec, ns = self._ts.unpack_from(anc[0][2])
-                ts = sec + ns * 1e-9
-            ext = bool(can_id & self._eff)
-            rtr, err = bool(can_id & self._rtr), bool(can_id & self._err)
-            arb = can_id & (0x1FFFFFFF if ext else 0x7FF)
-            is_fd = len(cf) == self._mtu
-            fr = Frame(-1 if rtr or err else arb, bytes(data), is_fd, ext, ts)
-            m = None
-            if with_messages:
-                m = can.Message(timestamp=ts, arbitration_id=arb, is_extended_id=ext,
-                                is_remote_frame=rtr, is_error_frame=err, is_fd=is_fd,
-                                dlc=dlc, data=data)
-            got.append((fr, m))
-
-
-class _Sendmmsg:
-    """``sendmmsg(2)`` through ctypes with preallocated buffers (classic 16-byte CAN frames).
-
-    One per port (the buffers are reused on every call; a port is used by one thread)."""
-
-    slots = 32
-
-    def __init__(self) -> None:
-        import ctypes
-
-        class IoVec(ctypes.Structure):
-            _fields_ = [("base", ctypes.c_void_p), ("len", ctypes.c_size_t)]
-
-        class MsgHdr(ctypes.Structure):
-            _fields_ = [("name", ctypes.c_void_p), ("namelen", ctypes.c_uint32),
-                        ("iov", ctypes.POINTER(IoVec)), ("iovlen", ctypes.c_size_t),
-                        ("control", ctypes.c_void_p), ("controllen", ctypes.c_size_t),
-                        ("flags", ctypes.c_int)]
-
-        class MMsgHdr(ctypes.Structure):
-            _fields_ = [("hdr", MsgHdr), ("len", ctypes.c_uint)]
-
-        self._libc = ctypes.CDLL(None, use_errno=True)
-        self._fn = self._libc.sendmmsg
-        self._buf = ctypes.create_string_buffer(16 * self.slots)
-        base = ctypes.addressof(self._buf)
-        self._iov = (IoVec * self.slots)(*[IoVec(base + 16 * i, 16) for i in range(self.slots)])
-        self._msgs = (MMsgHdr * self.slots)()
-        for i in range(self.slots):
-            self._msgs[i].hdr.iov = ctypes.pointer(self._iov[i])
-            self._msgs[i].hdr.iovlen = 1
-        self._flags = socket.MSG_DONTWAIT
-
-    @classmethod
-    def create(cls) -> _Sendmmsg | None:
-        try:
-            return cls()
-        except (OSError, AttributeError):  # no libc sendmmsg here: one send per frame
-            return None
-
-    def send(self, fd: int, wires: list[bytes]) -> int:
-        for i, w in enumerate(wires):
-            self._buf[16 * i:16 * i + 16] = w
-        n = self._fn(fd, self._msgs, len(wires), self._flags)
-        return max(n, 0)

@@ -1,6 +1,6 @@
 """Strapdown attitude estimate relative to the orbit frame, and quaternion helpers.
 
-Frames (seed 004 section 2; DESIGN.md 5.1): the orbit frame O has y' along the radius vector
+Frames (seed 004 section 2; docs/design.md 5.1): the orbit frame O has y' along the radius vector
 from the Earth's centre, z' against the orbital angular velocity and x' completing the right-handed
 set (towards the velocity), so the orbit frame turns about its own axes at ``-w0 z'``. B is the
 body frame. T is the target frame, fixed in O: ``R`` is the quaternion of T relative to O.
@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from hil.quaternion import q_conj, q_mul
+from common.quaternion import q_conj, q_mul
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 Z_AXIS = np.array([0.0, 0.0, 1.0])

@@ -56,8 +56,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.vehicle import ControllerCfg, VehicleArrays, VehicleCfg
 from flight.attitude import error_quaternion, orbit_rate_B_rad_s, rotation_angle
-from hil.config import ControllerCfg, VehicleArrays, VehicleCfg
 
 CURVE_ACCEL_FRACTION = 0.5  # chosen: the seed gives no eps; half the weaker-sign authority
 

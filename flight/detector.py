@@ -1,6 +1,7 @@
 """Thruster fault detector: integral residuals with forgetting (seed 000; seed 003).
 
-Every tick (DESIGN 6.4), with ``dw`` (3,) the residual ``w_obs - w_calc`` in body axes (rad/s):
+Every tick (docs/design.md 6.4), with ``dw`` (3,) the residual ``w_obs - w_calc`` in body axes
+(rad/s):
 
 1. dead zone: ``|dw| < dead_zone_rad_s`` -> ``dw_n = 0``; otherwise ``dw_n = dw / |dw|``
    (seed 000: the normalisation keeps a strong thruster's fault from tripping a weak one first);
@@ -42,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.config import DetectorCfg
+from common.vehicle import DetectorCfg
 
 STUCK_ON = "stuck_on"
 FAIL_TO_FIRE = "fail_to_fire"

@@ -1,4 +1,4 @@
-"""FDIR response to a detection (DESIGN 6.4 step 7): a small state machine written as data.
+"""FDIR response to a detection (docs/design.md 6.4 step 7): a small state machine written as data.
 
 States: ``nominal`` (no fault), ``reconfigured`` (a thruster or manifold taken out, detection
 re-armed), ``reported`` (fault reported, response ``none``: the detector stays latched, single
@@ -10,7 +10,7 @@ The table ``(state, event) -> (next state, action)`` is built once from the vehi
 ``flight.fdir`` section; an action that names a config key is resolved there:
 
 * stuck on -> ``on_stuck_on`` (default ``close_manifold``: only closing its manifold's isolation
-  valve stops a thruster that does not turn off, DESIGN 5.5);
+  valve stops a thruster that does not turn off, docs/design.md 5.5);
 * fails to fire -> ``on_fail_to_fire`` (default ``drop_thruster``: the allocator stops using it);
 * degraded -> ``on_degraded``.
 
@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from common.vehicle import FdirCfg
 from flight.detector import Detection
-from hil.config import FdirCfg
 
 NOMINAL, RECONFIGURED, REPORTED, SAFE = "nominal", "reconfigured", "reported", "safe"
 STATES = (NOMINAL, RECONFIGURED, REPORTED, SAFE)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.config import KalmanCfg
+from common.vehicle import KalmanCfg
 
 
 @dataclass(frozen=True)

@@ -74,7 +74,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.config import ObserverCfg
+from common.vehicle import ObserverCfg
 
 # Forgetting of the running mean squares that normalise the parameter steps.
 _P_FORGET = 0.95

@@ -40,8 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.config import VehicleArrays, VehicleCfg
-from hil.quaternion import cross3
+from common.quaternion import cross3
+from common.vehicle import VehicleArrays, VehicleCfg
 
 # Tolerance on "the command is the full tick" (continuous firing), s.
 _FULL_TICK_TOL_S = 1e-6
@@ -80,7 +80,7 @@ class BurnTimeline:
     Times are seconds from the current prediction interval's start (the sample ``s_n``).
     ``advance(tau_cmd_s)`` takes the commands of tick n and returns, for the interval
     ``[0, h]``, the burn (N,) and the angle weight ``int (h - t) dt`` over the burn (N,);
-    the parts after ``h`` are kept for the next call (seed 004 lags, DESIGN section 3).
+    the parts after ``h`` are kept for the next call (seed 004 lags, docs/design.md section 3).
     """
 
     def __init__(self, n: int, tick_s: float, latency_s: float, on_lag_s: float,

@@ -32,7 +32,7 @@ from functools import cached_property
 
 import numpy as np
 
-from hil.config import ThrustProfileCfg, TimingCfg
+from common.vehicle import ThrustProfileCfg, TimingCfg
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The flight software's tick as one pure object (DESIGN section 3 pipeline).
+"""The flight software's tick as one pure object (docs/design.md section 3 pipeline).
 
 ``FlightSoftware(vehicle, target=None, initial_attitude=None).step(tick, gyro_B_rad_s)`` runs,
 in order: read the gyro sample; observer update (seed 003 eqs. 7-8); detector update with the
@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.scenario import AttitudeCfg
+from common.vehicle import VehicleArrays, VehicleCfg
 from flight.allocator import Allocation, Allocator
 from flight.attitude import AttitudeEstimate, q_rotate_inv
 from flight.controller import Controller, RateDemand
@@ -34,7 +36,6 @@ from flight.fdir import Fdir
 from flight.kalman import DisturbanceKalman
 from flight.observer import AdaptiveObserver, ObserverOutput
 from flight.onboard_model import OnboardModel, Prediction
-from hil.config import AttitudeCfg, VehicleArrays, VehicleCfg
 
 _Y_ORBIT = np.array([0.0, 1.0, 0.0])  # local vertical in the orbit frame (seed 003 eq. 9)
 

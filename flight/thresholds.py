@@ -1,4 +1,5 @@
-"""Detector thresholds from a required detection time and fault-free statistics (DESIGN 6.4 step 6).
+"""Detector thresholds from a required detection time and fault-free statistics
+(docs/design.md 6.4 step 6).
 
 Seed 000: for a constant projection ``xi`` the integral residual is an arithmetic-geometric
 progression ``rho[n] = xi (1 - w^(n+1)) / (1 - w)`` (limit ``xi / (1 - w)``); a lone outlier
@@ -22,14 +23,12 @@ crosses). It returns the threshold, the ticks to detection
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from hil.errors import UsageError
+from flight.errors import ThresholdError
 
 
 def progression(xi: float, w: float, n: int) -> float:
@@ -73,21 +72,22 @@ class Proposal:
 def propose(detection_time_s: float, tick_s: float, *, xi_seq: np.ndarray | None = None,
             xi_mean: float = 0.02, xi_max: float = 1.0, run: int = 1, xi_fault: float = 1.0,
             margin: float = 1.5, w_grid: np.ndarray | None = None) -> Proposal:
-    """Choose (w, threshold) as in the module doc. Raises UsageError when nothing fits."""
+    """Choose (w, threshold) as in the module doc. Raises ThresholdError (naming the
+    parameter) on a bad argument or when nothing fits."""
     if detection_time_s <= 0:
-        raise UsageError(f"--detection-time: expected > 0 s, got {detection_time_s:g}")
+        raise ThresholdError(f"detection_time_s: expected > 0 s, got {detection_time_s:g}")
     if tick_s <= 0:
-        raise UsageError(f"--tick: expected > 0 s, got {tick_s:g}")
+        raise ThresholdError(f"tick_s: expected > 0 s, got {tick_s:g}")
     if not 0.0 < xi_fault <= 1.0:
-        raise UsageError(f"--xi-fault: expected in (0, 1], got {xi_fault:g}")
+        raise ThresholdError(f"xi_fault: expected in (0, 1], got {xi_fault:g}")
     if margin < 1.0:
-        raise UsageError(f"--margin: expected >= 1, got {margin:g}")
+        raise ThresholdError(f"margin: expected >= 1, got {margin:g}")
     if xi_mean < 0 or xi_max < 0 or run < 1:
-        raise UsageError("--xi-mean, --xi-max: expected >= 0; --run: expected >= 1")
+        raise ThresholdError("xi_mean, xi_max: expected >= 0; run: expected >= 1")
     n_ticks = int(math.floor(detection_time_s / tick_s + 1e-9))
     if n_ticks < 1:
-        raise UsageError(
-            f"--detection-time: expected at least one tick ({tick_s:g} s), "
+        raise ThresholdError(
+            f"detection_time_s: expected at least one tick ({tick_s:g} s), "
             f"got {detection_time_s:g}")
     grid = np.round(np.arange(0.50, 0.951, 0.01), 2) if w_grid is None else np.asarray(w_grid)
     lines = [
@@ -117,7 +117,7 @@ def propose(detection_time_s: float, tick_s: float, *, xi_seq: np.ndarray | None
         if best is None or key > (best.limit / best.threshold, -best.ticks):
             best = cand
     if best is None:
-        raise UsageError(
+        raise ThresholdError(
             f"no forgetting factor in [{grid[0]:g}, {grid[-1]:g}] separates a fault within "
             f"{detection_time_s:g} s from the no-fault residual with margin {margin:g}: "
             "lower the margin, allow more time or widen the dead zone")
@@ -132,30 +132,3 @@ def propose(detection_time_s: float, tick_s: float, *, xi_seq: np.ndarray | None
     ]
     best.reasoning = lines
     return best
-
-
-def load_xi(path: str | Path) -> np.ndarray:
-    """Projections xi (T, N) of a fault-free run from a JSON file ({"xi": [[...], ...]}) or an
-    NPZ archive with an array ``xi``."""
-    p = Path(path)
-    if not p.exists():
-        raise UsageError(f"{p}: expected an existing JSON or NPZ file, got no such file")
-    try:
-        if p.suffix == ".npz":
-            with np.load(p) as data:
-                if "xi" not in data:
-                    raise UsageError(f"{p}: expected an array 'xi', got {sorted(data.files)}")
-                xi = np.asarray(data["xi"], dtype=float)
-        else:
-            obj = json.loads(p.read_text(encoding="utf-8"))
-            if not isinstance(obj, dict) or "xi" not in obj:
-                raise UsageError(
-                    f"{p}: expected a JSON object with a key 'xi', got {type(obj).__name__}")
-            xi = np.asarray(obj["xi"], dtype=float)
-    except (ValueError, OSError) as exc:
-        raise UsageError(f"{p}: expected numeric xi (T, N), got {exc}") from None
-    if xi.ndim == 1:
-        xi = xi[:, None]
-    if xi.ndim != 2 or xi.size == 0 or not np.all(np.isfinite(xi)):
-        raise UsageError(f"{p}: xi: expected a finite (T, N) array, got shape {xi.shape}")
-    return xi

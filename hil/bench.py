@@ -3,7 +3,7 @@
 ``hil bench [--duration S] [--out DIR] [--json FILE] [--stress] [--rt] [--vehicle V]``
 
 Runs, where vcan0 exists (natively, or inside user-mode Linux which it starts by itself like
-``hil run``), and prints one table (DESIGN.md section 1, item 4; issue 7):
+``hil run``), and prints one table (docs/design.md section 1, item 4; issue 7):
 
 * a real-time run of a generated scenario (``--vehicle``, default ``orel``: 30 thrusters,
   firing from a 3 deg start) through ``hil.run.supervise``: tick release jitter (wake-up
@@ -33,7 +33,7 @@ measured, 1 when one is missing or absurd (listed under the table), 2 on a usage
 
 While the runs go, this process (the supervisor: bus monitor, rerun recording) runs with
 SCHED_BATCH, so on one CPU its per-frame wake-ups do not preempt the flight software in the
-middle of a tick; the nodes set their own policies (``hil.nodes._set_policy``).
+middle of a tick; the nodes set their own policies (``hil.process_policy.set_policy``).
 """
 
 from __future__ import annotations
@@ -48,137 +48,21 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hil.errors import HilError, UsageError
-from hil.summary import percentiles_ms
+from hil.bench_bus import measure_bus
+from hil.bench_plots import write_plots
+from hil.bench_table import PARTS, check_figures, format_table, goals
+from hil.errors import UsageError
+from hil.process_policy import sched_policy, where_here
+from hil.timing import STAGE_GROUPS, lockstep_figures, realtime_figures, stats_ms
 
 HOST_LOAD_ENV = "HIL_BENCH_HOST_LOAD"  # the host's load average, for a run inside UML
-WARMUP_TICKS = 5  # 1 s at 5 Hz: imports, first solves, page faults
-PARTS = ("realtime", "lockstep", "bus", "allocator", "load")
-STAGE_GROUPS = {  # the issue's names -> the stages the flight records
-    "I/O": ("gyro_in", "thr_cmd_out", "fdir_tm_out"),
-}
-GOALS = (
-    # (text, key path in the report, limit): shown as met or not met, never asserted
-    ("release jitter p99 < 1 ms", ("realtime", "release_jitter_ms", "p99"), 1.0),
-    ("no overrun", ("realtime", "overruns"), 0),
-    ("flight compute p99 < 2 ms", ("realtime", "compute_ms", "p99"), 2.0),
-    ("sensor-to-actuator p99 < 5 ms + bus one-way p99", ("realtime", "s2a_ms", "p99"), None),
-    ("lockstep >= 20x real time", ("lockstep", "speed_x_realtime"), 20.0),
-)
-
-
 # ============================================================================ pure figures
-
-
-def stats_ms(values_s: Iterable[float | None]) -> dict[str, float | int | None]:
-    """p50 / p99 / max in milliseconds of seconds values (None skipped), and their count."""
-    v = [float(x) for x in values_s if x is not None]
-    return {**percentiles_ms(v), "n": len(v)}
-
-
-def _wrap_ge(a: int, b: int) -> bool:
-    """``a`` at or after ``b`` on the 16-bit sample counter."""
-    return ((a - b) & 0xFFFF) < 0x8000
-
-
-def realtime_figures(plant_records: list[dict], flight_records: list[dict], tick_s: float,
-                     warmup_ticks: int = WARMUP_TICKS) -> dict[str, Any]:
-    """Timing figures of a real-time run from the per-tick records of both processes.
-
-    Flight ticks before ``warmup_ticks`` and after the plant's last gyro sample are left out
-    (and counted); latency chains of those ticks too.
-    """
-    fl = [r for r in flight_records if r.get("jitter_s") is not None]
-    final = next((r for r in plant_records if r.get("final")), {})
-    last_seq = final.get("last_gyro_seq")
-    first = fl[0]["tick"] if fl else 0
-    kept, after_end = [], 0
-    for r in fl:
-        want = r.get("gyro_seq_expected")
-        if last_seq is not None and want is not None and not _wrap_ge(last_seq, want):
-            after_end += 1
-            continue
-        if r["tick"] >= first + warmup_ticks:
-            kept.append(r)
-    stage_names: list[str] = []
-    for r in kept:
-        for k in r.get("stage_s", {}):
-            if k not in stage_names:
-                stage_names.append(k)
-    stages = {k: stats_ms(r["stage_s"].get(k) for r in kept) for k in stage_names}
-    for group, members in STAGE_GROUPS.items():
-        if any(m in stage_names for m in members):
-            stages[group] = stats_ms(sum(r["stage_s"].get(m, 0.0) for m in members)
-                                     for r in kept)
-    compute = [r["compute_s"] for r in kept if r.get("compute_s") is not None]
-    share = {k: (round(float(np.percentile(compute, q)) / tick_s, 6) if compute else None)
-             for k, q in (("p50", 50), ("p99", 99), ("max", 100))}
-    first_kept = kept[0]["tick"] if kept else first + warmup_ticks
-    chains = [c for r in plant_records for c in r.get("chain", [])
-              if c.get("tick", 0) >= first_kept]
-    pub = [c["published_s"] - c["sample_s"] for c in chains if c.get("published_s") is not None]
-    turn = [c["received_s"] - c["published_s"] for c in chains
-            if c.get("published_s") is not None]
-    on = [r for r in kept if any(v > 0 for v in r.get("series", {}).get("flight/on_ms", {})
-                                 .values())]
-    last_flight = fl[-1] if fl else {}
-    before = next((r for r in reversed(fl) if kept and r["tick"] < kept[0]["tick"]), {})
-    return {
-        "ticks": len(fl), "ticks_used": len(kept), "warmup_ticks": min(warmup_ticks, len(fl)),
-        "ticks_after_plant_end": after_end, "tick_ms": round(tick_s * 1e3, 3),
-        "release_jitter_ms": stats_ms(r["jitter_s"] for r in kept),
-        # Overruns in the measured ticks (counter before the first, at the last), and all.
-        "overruns": (int(kept[-1].get("overruns", 0)) - int(before.get("overruns", 0))
-                     if kept else 0),
-        "overruns_all_ticks": int(last_flight.get("overruns", 0)),
-        "late_gyro": sum(1 for r in kept if r.get("gyro_late")),
-        "gyro_wait_ms": stats_ms(r.get("gyro_wait_s") for r in kept),
-        "compute_ms": stats_ms(compute),
-        "stage_ms": stages,
-        "tick_share": share,
-        "s2a_ms": stats_ms(c["applied_s"] - c["sample_s"] for c in chains),
-        "gyro_publish_ms": stats_ms(pub),
-        "flight_turnaround_ms": stats_ms(turn),
-        "firing_ticks": len(on),
-        "_kept_ticks": [r["tick"] for r in kept],  # for the plots, not the JSON
-    }
-
-
-def timing_summary(plant_records: list[dict], flight_records: list[dict],
-                   tick_s: float) -> dict[str, Any]:
-    """The per-run timing block for ``summary.json`` (``hil run``): no warm-up cut, so every
-    tick of the run counts. Empty dict for a lockstep run (no real-time figures)."""
-    if not any(r.get("jitter_s") is not None for r in flight_records):
-        return {}
-    f = realtime_figures(plant_records, flight_records, tick_s, warmup_ticks=0)
-    keep = ("release_jitter_ms", "gyro_wait_ms", "late_gyro", "stage_ms", "tick_share",
-            "s2a_ms", "gyro_publish_ms", "flight_turnaround_ms")
-    return {k: f[k] for k in keep}
-
-
-def lockstep_figures(plant_records: list[dict], summary: dict | None = None) -> dict[str, Any]:
-    """Speed of a lockstep run: the loop (plant's own wall time) and end to end."""
-    ticks = [r for r in plant_records if not r.get("final")]
-    final = next((r for r in plant_records if r.get("final")), {})
-    sim_s = ticks[-1]["t_s"] if ticks else 0.0
-    wall = final.get("wall_s")
-    out = {
-        "ticks": len(ticks), "sim_s": sim_s, "loop_wall_s": wall,
-        "speed_x_realtime": round(sim_s / wall, 2) if wall else None,
-        "sync_to_cmd_ms": stats_ms(r.get("sync_to_cmd_s") for r in ticks),
-        "plant_cpu_s": final.get("cpu_s"),
-        "deadline_misses": int(ticks[-1].get("deadline_misses", 0)) if ticks else 0,
-    }
-    if summary:
-        out["end_to_end_x_realtime"] = summary.get("speed_x_realtime")
-        out["end_to_end_wall_s"] = summary.get("wall_s")
-    return out
 
 
 def bus_load_figures(bitrate_bps: int) -> dict[str, Any]:
@@ -192,236 +76,7 @@ def bus_load_figures(bitrate_bps: int) -> dict[str, Any]:
                        for n, b, f in rows]}
 
 
-def _get(d: dict, path: tuple[str, ...]) -> Any:
-    for k in path:
-        if not isinstance(d, dict) or k not in d:
-            return None
-        d = d[k]
-    return d
-
-
-def goals(report: dict) -> list[dict[str, Any]]:
-    """Issue 7's goals against the figures (information for the reader, never a failure)."""
-    out = []
-    one_way = _get(report, ("bus", "one_way_ms", "a_to_b", "p99"))
-    for text, path, limit in GOALS:
-        value = _get(report, path)
-        if limit is None:  # sensor-to-actuator: 5 ms plus the bus's one-way latency
-            limit = None if one_way is None else round(5.0 + one_way, 4)
-        if value is None or limit is None:
-            met = None
-        elif path[-1] == "overruns":
-            met = value <= limit
-        elif path[-1] == "speed_x_realtime":
-            met = value >= limit
-        else:
-            met = value < limit
-        out.append({"goal": text, "value": value, "limit": limit, "met": met})
-    return out
-
-
-def check_figures(report: dict, parts: Iterable[str] = PARTS) -> list[str]:
-    """Every figure present, finite, non-negative and ordered; one line per problem.
-
-    What the CI smoke run asserts: the bench measured everything and nothing is absurd. No
-    figure is compared with a time limit (a slow machine is not a failure).
-    """
-    problems: list[str] = []
-
-    def num(path: str, x: Any, *, lo: float = 0.0, hi: float | None = None) -> None:
-        if not isinstance(x, int | float) or isinstance(x, bool) or not math.isfinite(x):
-            problems.append(f"{path}: expected a finite number, got {x!r}")
-        elif x < lo or (hi is not None and x > hi):
-            problems.append(f"{path}: expected {lo} <= value{f' <= {hi}' if hi else ''}, "
-                            f"got {x}")
-
-    def triple(path: str, d: Any) -> None:
-        if not isinstance(d, dict):
-            problems.append(f"{path}: expected p50/p99/max, got {d!r}")
-            return
-        for k in ("p50", "p99", "max"):
-            num(f"{path}.{k}", d.get(k))
-        if all(isinstance(d.get(k), int | float) for k in ("p50", "p99", "max")) and not (
-                d["p50"] <= d["p99"] + 1e-9 <= d["max"] + 2e-9):
-            problems.append(f"{path}: expected p50 <= p99 <= max, got "
-                            f"{d['p50']}, {d['p99']}, {d['max']}")
-
-    def where(path: str, sec: Any) -> None:
-        w = sec.get("where") if isinstance(sec, dict) else None
-        if not isinstance(w, dict) or not w.get("kernel"):
-            problems.append(f"{path}.where: expected the kernel it ran on, got {w!r}")
-
-    parts = tuple(parts)
-    if "realtime" in parts:
-        rt = report.get("realtime") or {}
-        where("realtime", rt)
-        for k in ("release_jitter_ms", "compute_ms", "s2a_ms", "gyro_wait_ms",
-                  "gyro_publish_ms", "flight_turnaround_ms"):
-            triple(f"realtime.{k}", rt.get(k))
-        stages = rt.get("stage_ms") or {}
-        for k in ("observer", "detector", "controller", "allocator", "I/O"):
-            triple(f"realtime.stage_ms.{k}", stages.get(k))
-        share = rt.get("tick_share") or {}
-        # The median tick inside its tick; p99 and max may pass 1 (an overrun is counted).
-        for k in ("p50", "p99", "max"):
-            num(f"realtime.tick_share.{k}", share.get(k), hi=1.0 if k == "p50" else None)
-        num("realtime.overruns", rt.get("overruns"))
-        num("realtime.ticks_used", rt.get("ticks_used"), lo=1)
-        sched = (rt.get("where") or {}).get("sched") or {}
-        for node in ("flight", "plant"):
-            if not sched.get(node):
-                problems.append(f"realtime.where.sched.{node}: expected a policy, got nothing")
-    if "lockstep" in parts:
-        ls = report.get("lockstep") or {}
-        where("lockstep", ls)
-        num("lockstep.speed_x_realtime", ls.get("speed_x_realtime"), lo=1e-9)
-        num("lockstep.sim_s", ls.get("sim_s"), lo=1e-9)
-    if "bus" in parts:
-        bus = report.get("bus") or {}
-        where("bus", bus)
-        if not bus.get("clock"):
-            problems.append("bus.clock: expected the clock's name, got nothing")
-        triple("bus.round_trip_ms", bus.get("round_trip_ms"))
-        for k in ("a_to_b", "b_to_a"):
-            triple(f"bus.one_way_ms.{k}", (bus.get("one_way_ms") or {}).get(k))
-        triple("bus.stack_round_trip_ms", bus.get("stack_round_trip_ms"))
-    if "allocator" in parts:
-        al = report.get("allocator") or {}
-        where("allocator", al)
-        for k, d in (al.get("per_solve_us") or {"missing": None}).items():
-            triple(f"allocator.per_solve_us.{k}", d)
-        for k, v in (al.get("ratio_linprog_over") or {"missing": None}).items():
-            num(f"allocator.ratio_linprog_over.{k}", v, lo=1e-9)
-        num("allocator.max_cost_rel_diff", al.get("max_cost_rel_diff"))
-    if "load" in parts:
-        ld = report.get("bus_load") or {}
-        num("bus_load.fraction", ld.get("fraction"), hi=1.0)
-        num("bus_load.bitrate_bps", ld.get("bitrate_bps"), lo=1)
-    return problems
-
-
-# ============================================================================ the table
-
-
-def _f(x: Any, nd: int = 3) -> str:
-    if x is None:
-        return "-"
-    if isinstance(x, float):
-        return f"{x:.{nd}f}"
-    return str(x)
-
-
-def _where_text(w: dict | None) -> str:
-    if not w:
-        return ""
-    bits = [w.get("kernel", "?")]
-    sched = w.get("sched")
-    if isinstance(sched, dict):
-        bits.append(", ".join(f"{k} {v}" for k, v in sched.items()))
-    elif sched:
-        bits.append(str(sched))
-    if w.get("clock"):
-        bits.append(w["clock"])
-    return "; ".join(bits)
-
-
-def format_table(report: dict) -> str:
-    """The printed table: one line per figure, p50 / p99 / max, and where it was taken."""
-    head = report.get("host", {})
-    lines = [
-        f"hil bench: {head.get('kernel', '?')}, {head.get('cpus', '?')} CPU(s), host load "
-        f"{head.get('load_avg_1m', '?')} before, stress "
-        f"{'on (' + str(head.get('stress_procs')) + ' hogs)' if head.get('stress') else 'off'}, "
-        f"python {head.get('python', '?')}",
-        f"{'figure':<44}{'p50':>10}{'p99':>10}{'max':>10}",
-    ]
-
-    def row(name: str, d: dict | None, unit: str = "ms") -> None:
-        d = d or {}
-        lines.append(f"  {name + ' [' + unit + ']':<42}{_f(d.get('p50')):>10}"
-                     f"{_f(d.get('p99')):>10}{_f(d.get('max')):>10}")
-
-    def text(name: str, value: str) -> None:
-        lines.append(f"  {name:<42}{value}")
-
-    rt = report.get("realtime")
-    if rt:
-        lines.append(f"real time: {rt.get('vehicle')}, {rt.get('duration_s')} s, "
-                     f"{rt.get('ticks_used')} ticks used ({rt.get('warmup_ticks')} warm-up, "
-                     f"{rt.get('ticks_after_plant_end')} after the plant's end left out)")
-        lines.append(f"  where: {_where_text(rt.get('where'))}")
-        row("tick release jitter", rt.get("release_jitter_ms"))
-        text("overruns", f"{rt.get('overruns')} in {rt.get('ticks_used')} ticks "
-                         f"({rt.get('overruns_all_ticks')} in all {rt.get('ticks')})")
-        for k, d in (rt.get("stage_ms") or {}).items():
-            row(f"compute {k}", d)
-        row("compute whole tick", rt.get("compute_ms"))
-        sh = rt.get("tick_share") or {}
-        lines.append(f"  {'share of the ' + _f(rt.get('tick_ms'), 0) + ' ms tick':<42}"
-                     + "".join(f"{_f(None if sh.get(k) is None else 100 * sh[k], 2) + ' %':>10}"
-                               for k in ("p50", "p99", "max")))
-        row("sensor-to-actuator (sample->applied)", rt.get("s2a_ms"))
-        row("  of which sample->published", rt.get("gyro_publish_ms"))
-        row("  of which published->THR_CMD rx", rt.get("flight_turnaround_ms"))
-        row("flight's wait for its gyro sample", rt.get("gyro_wait_ms"))
-        text("late gyro samples (wait bound hit)", str(rt.get("late_gyro")))
-        text("ticks firing / FDIR false alarms",
-             f"{rt.get('firing_ticks')} / {rt.get('false_alarms')}")
-    ls = report.get("lockstep")
-    if ls:
-        lines.append(f"lockstep: {ls.get('sim_s')} s simulated")
-        lines.append(f"  where: {_where_text(ls.get('where'))}")
-        text("lockstep speed (loop) [x real time]", _f(ls.get("speed_x_realtime"), 2))
-        text("lockstep speed (start-up incl.) [x]",
-             _f(ls.get("end_to_end_x_realtime"), 2))
-        row("SYNC sent to THR_CMD complete", ls.get("sync_to_cmd_ms"))
-    bus = report.get("bus")
-    if bus:
-        lines.append(f"bus: {bus.get('frames')} frames ping-pong, {bus.get('lost')} lost")
-        lines.append(f"  where: {_where_text(bus.get('where'))}")
-        ow = bus.get("one_way_ms") or {}
-        row("one way A->B (send->recv)", ow.get("a_to_b"))
-        row("one way B->A", ow.get("b_to_a"))
-        row("round trip A->B->A", bus.get("round_trip_ms"))
-        row("SYNC->THR_CMD set (Port, 30 thr.)", bus.get("stack_round_trip_ms"))
-    al = report.get("allocator")
-    if al:
-        lines.append(f"allocator: {al.get('vehicle')}, {al.get('problems')} LPs, flight uses "
-                     f"{al.get('solver_configured')}")
-        lines.append(f"  where: {_where_text(al.get('where'))}")
-        for k, d in (al.get("per_solve_us") or {}).items():
-            row(f"LP solve {k}", d, "us")
-        for k, r in (al.get("ratio_linprog_over") or {}).items():
-            text(f"linprog / {k} (total time)", f"{_f(r, 1)}x")
-        text("largest optimum difference vs linprog", _f(al.get("max_cost_rel_diff"), 6))
-    ld = report.get("bus_load")
-    if ld:
-        text("bus load from the catalog",
-             f"{ld['total_bps']:.0f} bit/s = {100 * ld['fraction']:.2f} % of "
-             f"{ld['bitrate_bps'] / 1e6:g} Mbit/s")
-    gl = report.get("goals")
-    if gl:
-        lines.append("goals of issue 7 (information, not a verdict):")
-        for g in gl:
-            state = {True: "met", False: "NOT met", None: "-"}[g["met"]]
-            lines.append(f"  {g['goal']:<52}{_f(g['value']):>10}  {state}")
-    return "\n".join(lines)
-
-
 # ============================================================================ measurements
-
-
-def where_here() -> dict[str, Any]:
-    from hil.uml import in_uml
-
-    return {"kernel": "user-mode Linux" if in_uml() else "native kernel",
-            "cpus": os.cpu_count()}
-
-
-def _policy_name() -> str:
-    from hil.nodes import sched_policy
-
-    return sched_policy()
 
 
 @contextlib.contextmanager
@@ -430,14 +85,14 @@ def own_policy(policy: int) -> Iterator[str]:
     try:
         old = os.sched_getscheduler(0), os.sched_getparam(0)
     except (OSError, AttributeError):
-        yield _policy_name()
+        yield sched_policy()
         return
     try:
         os.sched_setscheduler(0, policy, os.sched_param(0))
     except (PermissionError, OSError):
         pass
     try:
-        yield _policy_name()
+        yield sched_policy()
     finally:
         with contextlib.suppress(PermissionError, OSError):
             os.sched_setscheduler(0, old[0], old[1])
@@ -574,161 +229,6 @@ def measure_lockstep(args, out: Path) -> dict[str, Any]:
 
 
 # -- bus latency: raw frames ping-pong between two processes (was bench_vcan_latency.py)
-
-PING_ID, ECHO_ID = 0x100, 0x101
-_TS_MASK = (1 << 48) - 1  # 6 payload bytes of nanoseconds (wraps after 78 h: handled)
-
-
-def pack(seq: int, t_ns: int) -> bytes:
-    """8-byte payload: seq (2 bytes) and the low 48 bits of a monotonic time in ns (6 bytes)."""
-    return (seq & 0xFFFF).to_bytes(2, "big") + (t_ns & _TS_MASK).to_bytes(6, "big")
-
-
-def unpack(data: bytes) -> tuple[int, int]:
-    return int.from_bytes(data[:2], "big"), int.from_bytes(data[2:8], "big")
-
-
-def since(t_now_ns: int, t48_ns: int) -> int:
-    """Nanoseconds from a 48-bit timestamp to now, across a wrap."""
-    return (t_now_ns - t48_ns) & _TS_MASK
-
-
-def _set_fifo(rt: bool) -> str:
-    if rt:
-        with contextlib.suppress(PermissionError, OSError, AttributeError):
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
-    return _policy_name()
-
-
-def echo(channel: str, n: int, rt: bool = False) -> None:
-    """Process B: echo every ping with B's send time; print A->B one-way times as JSON."""
-    import can
-
-    pol = _set_fifo(rt)
-    bus = can.Bus(interface="socketcan", channel=channel, receive_own_messages=False,
-                  can_filters=[{"can_id": PING_ID, "can_mask": 0x7FF, "extended": False}])
-    print("ready", flush=True)
-    a_to_b = []
-    try:
-        while len(a_to_b) < n:
-            msg = bus.recv(timeout=10)
-            if msg is None:
-                break
-            t_rx = time.monotonic_ns()
-            seq, t_tx_a = unpack(msg.data)
-            a_to_b.append(since(t_rx, t_tx_a))
-            bus.send(can.Message(arbitration_id=ECHO_ID, is_extended_id=False,
-                                 data=pack(seq, time.monotonic_ns())))
-    finally:
-        bus.shutdown()
-    print(json.dumps({"a_to_b_ns": a_to_b, "sched": pol}), flush=True)
-
-
-def ping_pong(channel: str = "vcan0", n: int = 1000, warmup: int = 50,
-              rt: bool = False) -> dict[str, Any]:
-    """Round trip and one-way times (ns lists) of ``n`` frames between two processes.
-
-    Process A (this one) sends a frame with its CLOCK_MONOTONIC send time; process B echoes
-    it with its own. One kernel, so both processes read the same CLOCK_MONOTONIC: A->B is B's
-    receive minus A's send, B->A the reverse, round trip A's receive of the echo minus its
-    send. User space to user space (python-can ``send`` to the return of ``recv``).
-    """
-    import can
-
-    total = n + warmup
-    peer = subprocess.Popen([sys.executable, "-m", "hil.bench", "_echo", channel, str(total)]
-                            + (["--rt"] if rt else []), stdout=subprocess.PIPE, text=True)
-    try:
-        if peer.stdout.readline().strip() != "ready":
-            raise HilError("bench: the echo process did not start")
-        old = os.sched_getscheduler(0), os.sched_getparam(0)
-        pol = _set_fifo(rt)
-        bus = can.Bus(interface="socketcan", channel=channel,
-                      can_filters=[{"can_id": ECHO_ID, "can_mask": 0x7FF, "extended": False}])
-        rtt, b_to_a, lost = [], [], 0
-        try:
-            for seq in range(total):
-                t_tx = time.monotonic_ns()
-                bus.send(can.Message(arbitration_id=PING_ID, is_extended_id=False,
-                                     data=pack(seq, t_tx)))
-                msg = bus.recv(timeout=2)
-                t_rx = time.monotonic_ns()
-                if msg is None or unpack(msg.data)[0] != seq & 0xFFFF:
-                    lost += 1
-                    continue
-                if seq >= warmup:
-                    rtt.append(t_rx - t_tx)
-                    b_to_a.append(since(t_rx, unpack(msg.data)[1]))
-        finally:
-            bus.shutdown()
-            with contextlib.suppress(PermissionError, OSError):
-                os.sched_setscheduler(0, old[0], old[1])
-        out, _ = peer.communicate(timeout=30)
-    finally:
-        if peer.poll() is None:
-            peer.kill()
-            peer.wait()
-    res = json.loads(out.strip().splitlines()[-1])
-    return {"rtt_ns": rtt, "a_to_b_ns": res["a_to_b_ns"][warmup:], "b_to_a_ns": b_to_a,
-            "lost": lost, "sched": {"A": pol, "B": res["sched"]}}
-
-
-def stack_round_trip(channel: str = "vcan0", n: int = 300) -> list[int]:
-    """SYNC(n) sent -> a complete, checked 30-thruster THR_CMD(n) set back through ``Port``
-    on both sides (encode, E2E, classify, assemble), ns, CLOCK_MONOTONIC (was bench_bus)."""
-    from bus.codec import ThrCmd
-    from bus.protocol import PlantLockstep
-    from bus.transport import BusConfig, Port, open_bus
-
-    cfg = BusConfig(interface="socketcan", channel=channel)
-    peer = subprocess.Popen([sys.executable, "-m", "bus.echo_peer", "--channel", channel,
-                             "--mode", "lockstep", "--ticks", str(n), "--idle-s", "3"],
-                            stdout=subprocess.PIPE, text=True)
-    rtt: list[int] = []
-    try:
-        if peer.stdout.readline().strip() != "ready":
-            raise HilError("bench: the lockstep echo peer did not start")
-        port = Port(open_bus(cfg))
-        plant = PlantLockstep(30, reply_timeout_s=2.0)
-        try:
-            for k in range(n):
-                t0 = time.monotonic_ns()
-                port.send(plant.begin_tick(k, port.now_s()))
-                while plant.result is None:
-                    for msg, rx_s in port.poll(0.05):
-                        if isinstance(msg, ThrCmd):
-                            plant.on_message(msg, rx_s)
-                    plant.poll(port.now_s())
-                if not plant.result.safe:
-                    rtt.append(time.monotonic_ns() - t0)
-        finally:
-            port.close()
-        peer.communicate(timeout=30)
-    finally:
-        if peer.poll() is None:
-            peer.kill()
-            peer.wait()
-    return rtt
-
-
-def measure_bus(args) -> dict[str, Any]:
-    pp = ping_pong(args.channel, args.pings, warmup=50, rt=args.rt)
-    stack = stack_round_trip(args.channel, max(50, args.pings // 4))
-    ns = 1e-9
-    return {
-        "frames": args.pings, "lost": pp["lost"],
-        "one_way_ms": {"a_to_b": stats_ms(x * ns for x in pp["a_to_b_ns"]),
-                       "b_to_a": stats_ms(x * ns for x in pp["b_to_a_ns"])},
-        "round_trip_ms": stats_ms(x * ns for x in pp["rtt_ns"]),
-        "stack_round_trip_ms": stats_ms(x * ns for x in stack),
-        "clock": "CLOCK_MONOTONIC, one kernel, two processes (user space to user space)",
-        "where": {**where_here(), "sched": pp["sched"],
-                  "clock": "CLOCK_MONOTONIC"},
-        "_series": {"one_way_ms": [x / 1e6 for x in pp["a_to_b_ns"]],
-                    "round_trip_ms": [x / 1e6 for x in pp["rtt_ns"]]},
-    }
-
-
 # -- allocator against linprog (was bench_allocator.py)
 
 
@@ -757,7 +257,8 @@ def compare_allocator(vehicle_name: str, ticks: int = 1000) -> dict[str, Any]:
     the clock, a system call under user-mode Linux, does not bias the ratio). Also the
     largest relative difference of the optimal cost between each solver and linprog.
     """
-    from flight.allocator import Allocator, linprog_solve
+    from flight.allocator import Allocator
+    from flight.lp import linprog_solve
     from hil.config import load_vehicle
 
     vehicle = load_vehicle(vehicle_name)
@@ -811,67 +312,6 @@ def compare_allocator(vehicle_name: str, ticks: int = 1000) -> dict[str, Any]:
     }
 
 
-# ============================================================================ plots
-
-
-def write_plots(report: dict, out: Path) -> list[str]:
-    """PNG histograms of jitter and latencies, and compute time per stage over time."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out.mkdir(parents=True, exist_ok=True)
-    where = report.get("host", {}).get("kernel", "")
-    made: list[str] = []
-    rt = (report.get("realtime") or {}).get("_series")
-    bus = (report.get("bus") or {}).get("_series")
-    if rt and rt["jitter_ms"]:
-        fig, ax = plt.subplots(figsize=(7, 4))
-        ax.hist(rt["jitter_ms"], bins=60, color="tab:blue")
-        ax.set_yscale("log")
-        ax.set_xlabel("release jitter: wake-up minus scheduled release [ms]")
-        ax.set_ylabel("ticks")
-        ax.set_title(f"flight tick release jitter ({where})")
-        fig.tight_layout()
-        fig.savefig(out / "jitter_hist.png", dpi=110)
-        plt.close(fig)
-        made.append("jitter_hist.png")
-    panels = []
-    if rt and rt["s2a_ms"]:
-        panels.append(("sensor-to-actuator: gyro sample to THR_CMD applied [ms]", rt["s2a_ms"]))
-    if bus:
-        panels.append(("bus one way A->B [ms]", bus["one_way_ms"]))
-        panels.append(("bus round trip [ms]", bus["round_trip_ms"]))
-    if panels:
-        fig, axes = plt.subplots(len(panels), 1, figsize=(7, 2.6 * len(panels)))
-        for ax, (label, vals) in zip(np.atleast_1d(axes), panels, strict=True):
-            ax.hist(vals, bins=60, color="tab:orange")
-            ax.set_yscale("log")
-            ax.set_xlabel(label)
-            ax.set_ylabel("count")
-        fig.suptitle(f"latency ({where})")
-        fig.tight_layout()
-        fig.savefig(out / "latency_hist.png", dpi=110)
-        plt.close(fig)
-        made.append("latency_hist.png")
-    if rt and rt["stage_ms"]:
-        fig, ax = plt.subplots(figsize=(9, 4.5))
-        t = rt["tick"]
-        for k, vals in rt["stage_ms"].items():
-            ax.plot(t, vals, lw=0.8, label=k)
-        ax.set_yscale("log")
-        ax.set_xlabel("flight tick")
-        ax.set_ylabel("compute time [ms]")
-        ax.set_title(f"flight compute per stage ({where})")
-        ax.legend(fontsize=7, ncol=4)
-        fig.tight_layout()
-        fig.savefig(out / "compute_stages.png", dpi=110)
-        plt.close(fig)
-        made.append("compute_stages.png")
-    return made
-
-
 # ============================================================================ command
 
 
@@ -891,7 +331,7 @@ def run_bench(args) -> dict[str, Any]:
              ("lockstep", lambda: measure_lockstep(args, out / "lockstep")),
              ("bus", lambda: measure_bus(args)),
              ("allocator", lambda: {**compare_allocator(args.vehicle, args.alloc_ticks),
-                                    "where": {**where_here(), "sched": _policy_name(),
+                                    "where": {**where_here(), "sched": sched_policy(),
                                               "clock": "CLOCK_MONOTONIC (perf_counter)"}}),
              ("load", lambda: bus_load_figures(args.bitrate))]
     hogs = CpuHogs((os.cpu_count() or 1) if args.stress else 0)
@@ -1026,9 +466,6 @@ def register(sub) -> None:
 def main(argv: list[str] | None = None) -> int:
     """``python -m hil.bench bench ...`` (what ``hil bench`` runs; also the UML re-run)."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["_echo"]:  # the peer process of ping_pong
-        echo(argv[1], int(argv[2]), rt="--rt" in argv)
-        return 0
     from hil.cli import main as cli_main
 
     return cli_main(argv)

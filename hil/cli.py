@@ -17,11 +17,11 @@ from hil.errors import HilError
 # Order is the order in `hil --help`.
 COMMAND_MODULES = (
     "hil.config_cmd",
-    "plant.cli",
-    "bus.cli",
+    "hil.thruster_profile_cmd",
+    "hil.dbc_cmd",
     "hil.vcan",
     "hil.uml",
-    "flight.cli",
+    "hil.thresholds_cmd",
     "hil.run",
     "hil.panel",
     "hil.runall",
@@ -32,9 +32,8 @@ COMMAND_MODULES = (
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # argparse prints usage + message, exit 2
-        self.print_usage(sys.stderr)
-        print(f"error: {message}", file=sys.stderr)
+    def error(self, message: str) -> None:  # one line, exit 2 (argparse: usage + message)
+        print(f"error: {self.prog}: {message} (see {self.prog} --help)", file=sys.stderr)
         raise SystemExit(2)
 
 
@@ -49,7 +48,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a bad argument (2, its one line printed)
+        return int(exc.code or 0)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

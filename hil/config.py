@@ -1,614 +1,82 @@
-"""Typed configuration: vehicles and scenarios in YAML, validated once on load.
+"""Configuration loading: vehicles and scenarios read from YAML, validated once on load.
 
-Every figure of a vehicle (DESIGN.md section 7) lives in ``configs/vehicles/<name>.yaml``; a
-scenario (DESIGN.md section 8) in ``configs/scenarios/<id>.yaml``. Models forbid unknown keys
-and are frozen; nothing past the loader sees a raw dict. A bad file raises ``ConfigError`` whose
-text is one line: ``configs/vehicles/orel.yaml: thrusters[3].thrust_n: expected > 0, got 0.0``.
+The models are the shared vocabulary and live on the ground floor (``common.vehicle``,
+``common.scenario``; the design, sections 7 and 8); this shell module owns the files: paths
+(``configs/vehicles/<name>.yaml``, ``configs/scenarios/<id>.yaml``), YAML reading, the merge of a
+scenario's flight overrides, and the cross-checks between a scenario, its vehicle and the bus
+catalog. A bad file raises ``ConfigError`` whose text is one line:
+``configs/vehicles/orel.yaml: thrusters[3].thrust_n: expected > 0, got 0.0``.
 
-Frames and units: body axes B (x, y, z = roll, yaw, pitch channels as in seed 004), positions in
-metres in the structural frame with the same axes (the centre of mass ``com_m`` is given in it),
-forces in newtons, torques in N m, rates in rad/s unless the name says ``deg``.
-
-``VehicleArrays`` (at the end) turns a vehicle into the numpy arrays both cores use.
+The models are re-exported here: a shell module that loads a file names what it gets from
+one place.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any
 
-import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import ValidationError
 
-from hil.errors import ConfigError, Raw
+from bus.catalog import HEARTBEAT_PERIOD_S, N_MANIFOLDS_MAX, N_THRUSTERS_MAX, TICK_S
+from common.errors import ConfigError, Raw
+from common.scenario import (
+    BUS_FAULTS,
+    GYRO_FAULTS,
+    THRUSTER_FAULTS,
+    AttitudeCfg,
+    ExpectationsCfg,
+    ExpectedDetection,
+    FaultKind,
+    FaultSpec,
+    InitialCfg,
+    PlantOverridesCfg,
+    SafetyCfg,
+    ScenarioCfg,
+)
+from common.schema import MAX_DURATION_S, RUN_NAME_PATTERN, config_error
+from common.units import G0_M_S2
+from common.vehicle import (
+    AllocatorCfg,
+    CmgCfg,
+    ControllerCfg,
+    DetectorCfg,
+    DisturbanceCfg,
+    FdirCfg,
+    FlexModeCfg,
+    FlightCfg,
+    GyroCfg,
+    KalmanCfg,
+    ModeShapeCfg,
+    ObserverCfg,
+    OnboardModelCfg,
+    OrbitCfg,
+    OrbitCorrectionCfg,
+    ThrusterCfg,
+    ThrustProfileCfg,
+    TimingCfg,
+    VehicleArrays,
+    VehicleCfg,
+)
 from hil.yamlsafe import YamlLimitError, read_yaml_file
+
+__all__ = [
+    "BUS_FAULTS", "CONFIG_DIR", "GYRO_FAULTS", "G0_M_S2", "REPO_ROOT", "SCENARIO_DIR",
+    "THRUSTER_FAULTS", "VEHICLE_DIR", "AllocatorCfg", "AttitudeCfg", "CmgCfg", "ConfigError",
+    "ControllerCfg", "DetectorCfg", "DisturbanceCfg", "ExpectationsCfg", "ExpectedDetection",
+    "FaultKind", "FaultSpec", "FdirCfg", "FlexModeCfg", "FlightCfg", "GyroCfg", "InitialCfg",
+    "KalmanCfg", "ModeShapeCfg", "ObserverCfg", "OnboardModelCfg", "OrbitCfg",
+    "OrbitCorrectionCfg", "PlantOverridesCfg", "SafetyCfg", "Scenario", "ScenarioCfg",
+    "ThrustProfileCfg", "ThrusterCfg", "TimingCfg", "VehicleArrays", "VehicleCfg", "load_any",
+    "load_scenario", "load_vehicle", "resolve_vehicle_path", "MAX_DURATION_S", "RUN_NAME_PATTERN",
+]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = REPO_ROOT / "configs"
 VEHICLE_DIR = CONFIG_DIR / "vehicles"
 SCENARIO_DIR = CONFIG_DIR / "scenarios"
-
-G0_M_S2 = 9.80665
-
-Vec3 = tuple[float, float, float]
-PosFloat = Annotated[float, Field(gt=0)]
-NonNegFloat = Annotated[float, Field(ge=0)]
-Fraction = Annotated[float, Field(ge=0, le=1)]
-Forgetting = Annotated[float, Field(gt=0, lt=1)]
-RUN_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,79}$"
-MAX_DURATION_S = 7 * 86400.0
-
-
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
-# --------------------------------------------------------------------------- vehicle: hardware
-
-
-class ThrusterCfg(_Model):
-    """One thruster. ``direction`` is the unit vector of the force it applies to the vehicle."""
-
-    name: str = Field(min_length=1)
-    position_m: Vec3
-    direction: Vec3
-    thrust_n: PosFloat
-    isp_s: PosFloat = 290.0
-    manifold: str
-
-    @field_validator("direction")
-    @classmethod
-    def _unit(cls, v: Vec3) -> Vec3:
-        n = math.sqrt(sum(c * c for c in v))
-        if not 0.999 <= n <= 1.001:
-            raise ValueError(f"a unit vector (norm 1 within 1e-3), norm is {n:.6g}")
-        return v
-
-
-class ThrustProfileCfg(_Model):
-    """Non-rectangular thrust profile, seed 004 eq. (4.1), and its equal-area lags.
-
-    Rise ``1 - exp(-k1 (t - T_R)^n1)`` after the electrical delay ``T_R``; decay
-    ``exp(-k2 (t - t_off - T_R)^n2)``. ``k1`` and ``k2`` are calibrated by the plant so that the
-    equal-area lags equal ``on_lag_ms`` and ``off_lag_ms`` (seed 004 section 4).
-    """
-
-    on_lag_ms: PosFloat = 30.0
-    off_lag_ms: PosFloat = 27.0
-    electrical_delay_ms: NonNegFloat = 10.0
-    rise_exponent: PosFloat = 2.0
-    decay_exponent: PosFloat = 1.0
-
-    @model_validator(mode="after")
-    def _lags_after_the_delay(self) -> ThrustProfileCfg:
-        # Equal-area lags include the electrical delay: the profile cannot be calibrated below it.
-        for name in ("on_lag_ms", "off_lag_ms"):
-            if getattr(self, name) <= self.electrical_delay_ms:
-                raise _FieldError(name, f"> electrical_delay_ms ({self.electrical_delay_ms:g})",
-                                  getattr(self, name))
-        return self
-
-
-class TimingCfg(_Model):
-    """Flight tick and PWM quantisation (seed 004; DESIGN.md section 3)."""
-
-    tick_s: PosFloat = 0.2
-    pwm_quantum_ms: PosFloat = 10.0
-    min_on_ms: NonNegFloat = 30.0
-    min_off_ms: NonNegFloat = 30.0
-
-
-class OrbitCfg(_Model):
-    """Circular orbit for the gravity-gradient torque ``3 w0^2 (j x J j)`` (DESIGN.md 5.1)."""
-
-    rate_rad_s: NonNegFloat = 0.001162
-    gravity_gradient: bool = True
-
-
-class CmgCfg(_Model):
-    """Optional CMG angular momentum in body axes, constant plus a constant rate of change."""
-
-    h_B_Nms: Vec3 = (0.0, 0.0, 0.0)
-    h_dot_B_Nm: Vec3 = (0.0, 0.0, 0.0)
-
-
-class DisturbanceCfg(_Model):
-    """External disturbance torque: constant part plus seeded white noise (per axis, 1-sigma)."""
-
-    constant_torque_B_Nm: Vec3 = (0.0, 0.0, 0.0)
-    random_torque_std_Nm: NonNegFloat = 0.0
-
-
-class ModeShapeCfg(_Model):
-    """Linear ``f`` and angular ``phi`` mode shape at one point (seed 003 eq. 2)."""
-
-    f: Vec3 = (0.0, 0.0, 0.0)
-    phi: Vec3 = (0.0, 0.0, 0.0)
-
-
-class FlexModeCfg(_Model):
-    """One elastic mode (seed 003 eq. 2): ``q'' + 2 delta lambda q' + (2 pi lambda)^2 q = ...``.
-
-    ``freq_hz`` is lambda_i, ``log_decrement`` is delta. ``gyro_phi`` is the angular mode shape at
-    the gyro (its contribution to the measured rate is ``gyro_phi * q'``, seed 003 eq. 3).
-    ``thrusters`` maps thruster names to their mode shapes; ``default`` applies to the others.
-    """
-
-    name: str
-    freq_hz: PosFloat
-    log_decrement: PosFloat
-    gyro_phi: Vec3
-    default: ModeShapeCfg = ModeShapeCfg()
-    thrusters: dict[str, ModeShapeCfg] = {}
-
-    @model_validator(mode="after")
-    def _oscillating(self) -> FlexModeCfg:
-        # delta >= 2 pi: the damping sigma = delta lambda reaches 2 pi lambda, no ringing at all.
-        if self.log_decrement >= 2.0 * math.pi:
-            raise _FieldError("log_decrement", "< 2 pi (an oscillating mode)", self.log_decrement)
-        return self
-
-
-class GyroCfg(_Model):
-    """Angular-rate sensor (seed 003 eq. 3; seed 002 for the integrating variant)."""
-
-    kind: Literal["rate", "integrating"] = "rate"
-    noise_std_rad_s: NonNegFloat = 0.0
-    bias_rad_s: Vec3 = (0.0, 0.0, 0.0)
-    bias_walk_rad_s_sqrt_s: NonNegFloat = 0.0
-    quantum_rad_s: NonNegFloat = 0.0
-    rate_hz: PosFloat = 5.0
-    latency_ms: NonNegFloat = 0.0
-
-
-# --------------------------------------------------------------------------- vehicle: flight
-
-
-class ControllerCfg(_Model):
-    """Phase-plane controller (seed 004 section 2) or the seed 002 law ``s = phi + k w``."""
-
-    law: Literal["phase_plane", "s_law"] = "phase_plane"
-    rate_deadband_deg_s: PosFloat = 0.12
-    angle_deadband_deg: PosFloat = 0.5
-    hysteresis_deg_s: NonNegFloat = 0.02
-    large_angle_deg: PosFloat = 15.0
-    curve_angle_deg: PosFloat = 6.1
-    max_rate_deg_s: PosFloat = 3.5
-    # Seed 002 law: s = phi + k w with a dead zone on s.
-    s_gain_s: PosFloat = 10.0
-    s_deadband_deg: PosFloat = 0.5
-
-
-class AllocatorCfg(_Model):
-    """Minimum-fuel LP allocation (seed 004 section 3)."""
-
-    # Dense bounded dual simplex with warm start: fastest here (bench/bench_allocator.py).
-    solver: Literal["highs", "simplex", "linprog"] = "simplex"
-    carry_remainder: bool = True
-    # Roll pairs used in orbit-correction mode (seed 004: (15,19), (17,21), (16,20), (18,22)).
-    roll_pairs: list[tuple[str, str]] = []
-
-
-class OnboardModelCfg(_Model):
-    """One-tick rate prediction (seed 003 eq. 9; seed 000 eq. 2)."""
-
-    predict_from: Literal["measured", "model"] = "measured"
-    command_latency_ms: NonNegFloat = 0.0
-
-
-class ObserverCfg(_Model):
-    """Self-tuning observer (seed 003 eqs. 7-8); ``rigid`` disables the flex estimate."""
-
-    kind: Literal["adaptive", "rigid"] = "adaptive"
-    gains: tuple[float, float, float, float, float, float, float, float] = (
-        0.5, 0.5, 0.05, 0.05, 0.01, 0.01, 0.1, 0.1,
-    )
-    initial_freq_hz: PosFloat = 0.2
-    initial_damping: NonNegFloat = 0.01
-    # |mu^| bound: the flex share at the gyro of a pulse's rate change (seed 003 eq. 8)
-    mu_bound: PosFloat = 5.0
-
-
-class DetectorCfg(_Model):
-    """Integral residuals with forgetting (seed 000; seed 003 threshold 0.5)."""
-
-    dead_zone_rad_s: NonNegFloat = 1e-4
-    # The dead zone grows with what was commanded: |dw| below dead_zone_rad_s plus this
-    # fraction of the sum of the commanded thrusters' rate changes (sum_j |mu_j| tau_E,j) is
-    # treated as zero, so thrust errors of the size the vehicle admits (DESIGN.md 10: +/-15 %)
-    # are not read as a failure of a whole thruster.
-    relative_dead_zone: float = Field(default=0.0, ge=0.0, lt=1.0)
-    forgetting_on: Forgetting = 0.9
-    forgetting_off: Forgetting = 0.9
-    threshold_on: PosFloat = 3.0
-    threshold_off: PosFloat = 3.0
-    # Two thrusters whose unit acceleration vectors differ by less than this angle are reported
-    # as a group (seed 003's stated limit of the method).
-    same_direction_deg: NonNegFloat = 2.0
-
-
-class KalmanCfg(_Model):
-    """Per-axis Kalman filter with a disturbance state (seed 002) and its leak test."""
-
-    enabled: bool = False
-    process_noise_accel: NonNegFloat = 1e-7
-    measurement_noise_rad: PosFloat = 1e-5
-    leak_threshold_rad_s2: PosFloat = 1e-4
-    window_ticks: int = Field(default=5, ge=1)
-
-
-class FdirCfg(_Model):
-    """Response to a detection (DESIGN.md 6.4 step 7), per vehicle."""
-
-    on_stuck_on: Literal["close_manifold", "drop_thruster", "none"] = "close_manifold"
-    on_fail_to_fire: Literal["close_manifold", "drop_thruster", "none"] = "drop_thruster"
-    on_degraded: Literal["close_manifold", "drop_thruster", "none"] = "drop_thruster"
-
-
-class OrbitCorrectionCfg(_Model):
-    """An orbit-correction burn (seed 004 section 3, eqs. 3.3-3.4), set per scenario.
-
-    From ``start_s`` the flight burns ``burn`` (4, 6 or 8 thrusters of the aft belt for +X,
-    of the front belt for -X) continuously, holds attitude by off-times, gives the lateral
-    components from the middle belt, and stops when its own prediction of the delta-v given
-    (no accelerometer: the sum of the allocator's predictions) is within ``tolerance_m_s`` of
-    ``delta_v_B_m_s`` (body axes; the craft holds the orbital attitude, so body ~ orbital).
-    ``scheme``: seed 004's name of the case (``cartesian``: X, Y, Z components;
-    ``polar``: the whole delta-v along X).
-    """
-
-    start_s: NonNegFloat = 0.0
-    delta_v_B_m_s: tuple[float, float, float]
-    burn: list[str] = Field(min_length=1)
-    scheme: Literal["cartesian", "polar"] = "cartesian"
-    tolerance_m_s: PosFloat = 0.02
-
-
-class FlightCfg(_Model):
-    controller: ControllerCfg = ControllerCfg()
-    allocator: AllocatorCfg = AllocatorCfg()
-    onboard_model: OnboardModelCfg = OnboardModelCfg()
-    observer: ObserverCfg = ObserverCfg()
-    detector: DetectorCfg = DetectorCfg()
-    kalman: KalmanCfg = KalmanCfg()
-    fdir: FdirCfg = FdirCfg()
-    orbit_correction: OrbitCorrectionCfg | None = None
-
-
-class VehicleCfg(_Model):
-    name: str
-    description: str = ""
-    mass_kg: PosFloat
-    inertia_B_kg_m2: tuple[Vec3, Vec3, Vec3]
-    com_m: Vec3 = (0.0, 0.0, 0.0)
-    timing: TimingCfg = TimingCfg()
-    thrust_profile: ThrustProfileCfg = ThrustProfileCfg()
-    orbit: OrbitCfg = OrbitCfg()
-    cmg: CmgCfg | None = None
-    disturbance: DisturbanceCfg = DisturbanceCfg()
-    gyro: GyroCfg = GyroCfg()
-    flex_modes: list[FlexModeCfg] = []
-    manifolds: list[str] = Field(min_length=1)
-    thrusters: list[ThrusterCfg] = Field(min_length=1)
-    flight: FlightCfg = FlightCfg()
-
-    @field_validator("inertia_B_kg_m2")
-    @classmethod
-    def _inertia(cls, v: tuple[Vec3, Vec3, Vec3]) -> tuple[Vec3, Vec3, Vec3]:
-        j = np.array(v, dtype=float)
-        if not np.allclose(j, j.T, rtol=0, atol=1e-9 * max(1.0, float(np.abs(j).max()))):
-            raise ValueError("a symmetric 3x3 matrix")
-        if np.linalg.eigvalsh(j).min() <= 0:
-            raise ValueError("a positive definite 3x3 matrix")
-        return v
-
-    @model_validator(mode="after")
-    def _cross(self) -> VehicleCfg:
-        names = [t.name for t in self.thrusters]
-        seen: set[str] = set()
-        for i, n in enumerate(names):
-            if n in seen:
-                raise _FieldError(f"thrusters[{i}].name", "a unique thruster name", n)
-            seen.add(n)
-        if len(set(self.manifolds)) != len(self.manifolds):
-            raise _FieldError("manifolds", "unique manifold names", self.manifolds)
-        for i, t in enumerate(self.thrusters):
-            if t.manifold not in self.manifolds:
-                raise _FieldError(
-                    f"thrusters[{i}].manifold", f"one of {self.manifolds}", t.manifold
-                )
-        for k, m in enumerate(self.flex_modes):
-            for tn in m.thrusters:
-                if tn not in seen:
-                    raise _FieldError(f"flex_modes[{k}].thrusters", "a thruster name", tn)
-        for k, (a, b) in enumerate(self.flight.allocator.roll_pairs):
-            for n in (a, b):
-                if n not in seen:
-                    raise _FieldError(f"flight.allocator.roll_pairs[{k}]", "a thruster name", n)
-        oc = self.flight.orbit_correction
-        for k, n in enumerate(oc.burn if oc else ()):
-            if n not in seen:
-                raise _FieldError(f"flight.orbit_correction.burn[{k}]", "a thruster name", n)
-        return self
-
-    def thruster_index(self, name: str) -> int:
-        for i, t in enumerate(self.thrusters):
-            if t.name == name:
-                return i
-        raise KeyError(name)
-
-
-# --------------------------------------------------------------------------- scenario
-
-THRUSTER_FAULTS = ("stuck_on", "fail_to_fire", "degraded")
-GYRO_FAULTS = ("gyro_spike", "gyro_bias_step", "gyro_frozen", "gyro_noise")
-BUS_FAULTS = ("bus_drop", "bus_delay", "bus_corrupt", "node_silent")
-FaultKind = Literal[
-    "stuck_on", "fail_to_fire", "degraded",
-    "gyro_spike", "gyro_bias_step", "gyro_frozen", "gyro_noise",
-    "bus_drop", "bus_delay", "bus_corrupt", "node_silent",
-]
-
-
-class FaultSpec(_Model):
-    """One injected fault (DESIGN.md 5.6).
-
-    ``fraction``: for ``stuck_on`` the residual thrust when commanded off (1.0 = full); for
-    ``degraded`` the thrust that remains. Gyro faults use ``axis`` (0..2, or None for all) and
-    ``magnitude_rad_s`` (spike, bias step, noise std). Bus faults use ``node`` and
-    ``probability`` / ``delay_ms``.
-    """
-
-    kind: FaultKind
-    t_s: NonNegFloat
-    clear_t_s: NonNegFloat | None = None
-    thruster: str | None = None
-    fraction: Fraction | None = None
-    axis: int | None = Field(default=None, ge=0, le=2)
-    magnitude_rad_s: float | None = None
-    node: Literal["flight", "plant"] | None = None
-    probability: Fraction = 1.0
-    delay_ms: NonNegFloat = 0.0
-
-    @model_validator(mode="after")
-    def _consistent(self) -> FaultSpec:
-        if self.clear_t_s is not None and self.clear_t_s <= self.t_s:
-            raise _FieldError("clear_t_s", f"a time after t_s={self.t_s}", self.clear_t_s)
-        if self.kind in THRUSTER_FAULTS and not self.thruster:
-            raise _FieldError("thruster", f"a thruster name for a {self.kind} fault", None)
-        if self.kind == "degraded" and self.fraction is None:
-            raise _FieldError("fraction", "a thrust fraction in [0, 1] for a degraded fault", None)
-        needs_magnitude = ("gyro_spike", "gyro_bias_step", "gyro_noise")
-        if self.kind in needs_magnitude and self.magnitude_rad_s is None:
-            raise _FieldError("magnitude_rad_s", f"a magnitude for a {self.kind} fault", None)
-        if self.kind in BUS_FAULTS and self.node is None:
-            raise _FieldError("node", "'flight' or 'plant' for a bus fault", None)
-        return self
-
-    @property
-    def effective_fraction(self) -> float:
-        """Residual (stuck_on) or remaining (degraded) thrust fraction; 0 for fail_to_fire."""
-        if self.kind == "fail_to_fire":
-            return 0.0
-        if self.fraction is None:
-            return 1.0
-        return float(self.fraction)
-
-
-class AttitudeCfg(_Model):
-    """An attitude as a rotation about ``axis`` by ``angle_deg`` (relative to the orbit frame)."""
-
-    axis: Vec3 = (1.0, 0.0, 0.0)
-    angle_deg: float = 0.0
-
-    @field_validator("axis")
-    @classmethod
-    def _nonzero(cls, v: Vec3) -> Vec3:
-        if math.sqrt(sum(c * c for c in v)) < 1e-12:
-            raise ValueError("a non-zero axis")
-        return v
-
-    def quaternion(self) -> np.ndarray:
-        """Scalar-first unit quaternion [q0, q1, q2, q3]."""
-        a = np.asarray(self.axis, dtype=float)
-        a = a / np.linalg.norm(a)
-        h = math.radians(self.angle_deg) / 2.0
-        return np.concatenate(([math.cos(h)], math.sin(h) * a))
-
-
-class InitialCfg(_Model):
-    attitude: AttitudeCfg = AttitudeCfg()
-    rate_B_deg_s: Vec3 = (0.0, 0.0, 0.0)
-
-
-class PlantOverridesCfg(_Model):
-    """Truth deviations from the nominal vehicle for one run (the flight keeps the nominal)."""
-
-    thrust_scale: PosFloat = 1.0
-    thrust_scale_per_thruster: dict[str, PosFloat] = {}
-    direction_error_deg: NonNegFloat = 0.0
-    command_latency_ms: NonNegFloat = 0.0
-    # Replaces the vehicle's constant disturbance torque for this run (None: the vehicle's).
-    disturbance_torque_B_Nm: tuple[float, float, float] | None = None
-    # Each step gets the exact thrust impulse (plant.core), so 10 ms loses nothing of the
-    # profile's ms features; RK4 error at w*h ~ 1e-3 is negligible.
-    step_s: Annotated[float, Field(ge=1e-4, le=0.1)] = 0.01
-
-
-class ExpectedDetection(_Model):
-    thruster: str | list[str]
-    type: Literal["stuck_on", "fail_to_fire", "degraded"]
-    within_s: PosFloat                    # the bound the run is judged against
-    seed_latency_s: PosFloat | None = None  # the seed's own figure, where it gives one
-
-
-class ExpectationsCfg(_Model):
-    detections: list[ExpectedDetection] = []
-    no_false_alarm: bool = True
-    max_attitude_error_deg: PosFloat | None = None
-    max_rate_error_deg_s: PosFloat | None = None
-    # Only judge the attitude/rate maxima after this time (e.g. after the initial slew).
-    settle_after_s: NonNegFloat = 0.0
-    # A demonstration run that must raise a false alarm (S003-flex-rigid, seed 003 fig. 2).
-    false_alarm_expected: bool = False
-    # Orbit correction: the delta-v (body axes, m/s) the plant must have received by the end,
-    # each component within delta_v_tol_m_s.
-    delta_v_B_m_s: tuple[float, float, float] | None = None
-    delta_v_tol_m_s: PosFloat = 0.3
-    # Rate "within the dead zone apart from brief excursions" (seed 004): after
-    # settle_after_s, no stretch longer than max_excursion_s with |rate| > rate_band_deg_s.
-    rate_band_deg_s: PosFloat | None = None
-    max_excursion_s: PosFloat = 10.0
-    # Recovery: from recover_after_s seconds after the first correct detection to the end,
-    # attitude error and rate stay within these bounds (the response holds attitude again).
-    recover_after_s: NonNegFloat | None = None
-    recovered_attitude_deg: PosFloat | None = None
-    recovered_rate_deg_s: PosFloat | None = None
-
-
-class SafetyCfg(_Model):
-    """When each side gives up on the other and goes to its safe state (DESIGN.md section 4).
-
-    ``thr_cmd_lost_ticks``: the plant closes every thruster valve and manifold when no
-    THR_CMD came for this many ticks (lockstep: deadline misses in a row; real time: ticks of
-    the plant's clock since the last command received). ``heartbeat_lost_s``: real time only,
-    the plant does the same when the flight's heartbeat (sent every
-    ``bus.catalog.HEARTBEAT_PERIOD_S``) has been silent this long; it must exceed that
-    period. ``gyro_lost_ticks``: the flight enters its safe mode (no firing, FDIR_STATUS safe
-    flag, heartbeat state SAFE) after this many ticks without a valid gyro sample (none
-    arrived, or every one was rejected by the receiver), and leaves it on the next valid one.
-    Entering and leaving are events in the records and on the terminal. ``python -m hil.nodes``
-    flags (``--lost-after``, ``--heartbeat-lost-s``, ``--gyro-lost-after``) override these.
-    """
-
-    thr_cmd_lost_ticks: int = Field(default=3, ge=1, strict=True)  # strict: `true` is no count
-    heartbeat_lost_s: PosFloat = 1.5
-    gyro_lost_ticks: int = Field(default=3, ge=1, strict=True)
-
-    @model_validator(mode="after")
-    def _above_heartbeat_period(self) -> SafetyCfg:
-        from bus.catalog import HEARTBEAT_PERIOD_S  # here: bus imports this package
-
-        if self.heartbeat_lost_s <= HEARTBEAT_PERIOD_S:
-            raise _FieldError("heartbeat_lost_s",
-                              f"> the heartbeat period {HEARTBEAT_PERIOD_S:g} s",
-                              self.heartbeat_lost_s)
-        return self
-
-
-class ScenarioCfg(_Model):
-    """A scenario file (``configs/scenarios/*.yaml``; the README shows one in full).
-
-    ``name``, ``description``, ``vehicle`` (a name in ``configs/vehicles`` or a path),
-    ``duration_s``, ``seed`` (every random source derives from it), ``initial`` (attitude and
-    rate relative to the orbit frame), ``target`` (attitude), ``plant`` (truth deviations,
-    ``PlantOverridesCfg``), ``flight`` (partial override of the vehicle's ``flight:``),
-    ``faults`` (``FaultSpec`` list), ``expect`` (optional verdict, ``ExpectationsCfg``) and
-    ``safety`` (optional, ``SafetyCfg``)::
-
-        safety: {thr_cmd_lost_ticks: 3, heartbeat_lost_s: 1.5, gyro_lost_ticks: 3}
-    """
-
-    # The name becomes the default output folder ``runs/<name>``: a safe set of characters,
-    # so a run never writes outside the folder chosen for it.
-    name: str = Field(pattern=RUN_NAME_PATTERN)
-    description: str = ""
-    vehicle: str
-    # A week of simulated time bounds what a run (and its records) can grow to.
-    duration_s: Annotated[float, Field(gt=0, le=MAX_DURATION_S)]
-    seed: int = Field(default=1, ge=0, lt=2**63)
-    initial: InitialCfg = InitialCfg()
-    target: AttitudeCfg = AttitudeCfg()
-    plant: PlantOverridesCfg = PlantOverridesCfg()
-    # Partial override of the vehicle's `flight:` section, merged key by key.
-    flight: dict[str, Any] = {}
-    faults: list[FaultSpec] = []
-    expect: ExpectationsCfg | None = None
-    safety: SafetyCfg = SafetyCfg()
-
-
-# --------------------------------------------------------------------------- loading
-
-
-class _FieldError(ValueError):
-    """Raised inside validators to report a precise field path, expectation and value."""
-
-    def __init__(self, field: str, expected: str, found: object) -> None:
-        super().__init__(f"{field}|{expected}")
-        self.field = field
-        self.expected = expected
-        self.found = found
-
-
-def _loc(loc: tuple[Any, ...]) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        else:
-            out += ("." if out else "") + str(part)
-    return out
-
-
-def _num(x: object) -> str:
-    return f"{x:g}" if isinstance(x, float) else str(x)
-
-
-_EXPECT = {
-    "greater_than": lambda c: f"> {_num(c['gt'])}",
-    "greater_than_equal": lambda c: f">= {_num(c['ge'])}",
-    "less_than": lambda c: f"< {_num(c['lt'])}",
-    "less_than_equal": lambda c: f"<= {_num(c['le'])}",
-    "missing": lambda c: "this field (it is required)",
-    "extra_forbidden": lambda c: "no such field (unknown key)",
-    "float_parsing": lambda c: "a number",
-    "float_type": lambda c: "a number",
-    "finite_number": lambda c: "a finite number",
-    "int_parsing": lambda c: "an integer",
-    "int_type": lambda c: "an integer",
-    "int_from_float": lambda c: "an integer",
-    "string_type": lambda c: "a string",
-    "bool_type": lambda c: "true or false",
-    "bool_parsing": lambda c: "true or false",
-    "literal_error": lambda c: f"one of {c['expected']}",
-    "tuple_type": lambda c: "a list",
-    "list_type": lambda c: "a list",
-    "dict_type": lambda c: "a mapping",
-    "model_type": lambda c: "a mapping",
-    "too_short": lambda c: f"at least {c['min_length']} item(s)",
-    "too_long": lambda c: f"at most {c['max_length']} item(s)",
-    "string_too_short": lambda c: "a non-empty string",
-    "string_pattern_mismatch": lambda c: (
-        "letters, digits and . _ + - (at most 80, not starting with a sign or dot)"
-        if c.get("pattern") == RUN_NAME_PATTERN else f"a string matching {c.get('pattern')}"),
-}
-
-
-def _config_error(where: str, exc: ValidationError, prefix: str = "") -> ConfigError:
-    err = exc.errors(include_url=False)[0]
-    field = _loc(err["loc"])
-    found = err.get("input")
-    ctx = err.get("ctx") or {}
-    inner = ctx.get("error")
-    if isinstance(inner, _FieldError):
-        field = ".".join(p for p in (field, inner.field) if p)
-        expected, found = inner.expected, inner.found
-    elif err["type"] in _EXPECT:
-        expected = _EXPECT[err["type"]](ctx)
-    elif err["type"] == "value_error" and inner is not None:
-        expected = str(inner)
-    else:
-        expected = err["msg"][0].lower() + err["msg"][1:]
-    if err["type"] == "missing":
-        found = Raw("nothing")
-    if prefix:
-        field = f"{prefix}.{field}" if field else prefix
-    if isinstance(found, dict) and err["type"] != "dict_type":
-        found = "a mapping"
-    return ConfigError(where, field, expected, found)
 
 
 def _display(path: Path) -> str:
@@ -666,7 +134,7 @@ def load_vehicle(
     try:
         vehicle = VehicleCfg.model_validate(data)
     except ValidationError as exc:
-        raise _config_error(_display(path), exc) from None
+        raise config_error(_display(path), exc) from None
     _check_bus_limits(vehicle, _display(path))
     return vehicle
 
@@ -675,8 +143,6 @@ def _check_bus_limits(v: VehicleCfg, where: str) -> None:
     """What the message catalog can carry (the ICD between flight and plant): thruster and
     manifold counts that fit THR_CMD and FDIR_STATUS, and the tick and PWM grid its on-time
     codes are defined on. Checked at load, so a vehicle the bus cannot fly never starts."""
-    from bus.catalog import N_MANIFOLDS_MAX, N_THRUSTERS_MAX, TICK_S
-
     if len(v.thrusters) > N_THRUSTERS_MAX:
         raise ConfigError(where, "thrusters", f"at most {N_THRUSTERS_MAX} thrusters (THR_CMD "
                           "carries no more)", Raw(f"{len(v.thrusters)} thrusters"))
@@ -720,7 +186,11 @@ def load_scenario(path: str | Path) -> Scenario:
     try:
         cfg = ScenarioCfg.model_validate(data)
     except ValidationError as exc:
-        raise _config_error(where, exc) from None
+        raise config_error(where, exc) from None
+    if cfg.safety.heartbeat_lost_s <= HEARTBEAT_PERIOD_S:
+        raise ConfigError(where, "safety.heartbeat_lost_s",
+                          f"> the heartbeat period {HEARTBEAT_PERIOD_S:g} s",
+                          cfg.safety.heartbeat_lost_s)
     vpath = resolve_vehicle_path(cfg.vehicle, relative_to=path.parent)
     if not vpath.exists():
         raise ConfigError(where, "vehicle", "a vehicle name or YAML path that exists", cfg.vehicle)
@@ -762,63 +232,3 @@ def load_any(path: str | Path) -> VehicleCfg | Scenario:
         return load_scenario(path)
     return load_vehicle(path)
 
-
-# --------------------------------------------------------------------------- derived arrays
-
-
-@dataclass(frozen=True)
-class VehicleArrays:
-    """Numpy views of a vehicle, shared by the plant and flight cores (nominal values).
-
-    Shapes: N thrusters. ``r_B_m`` (N, 3) lever arms from the centre of mass; ``d_B`` (N, 3) unit
-    force directions; ``thrust_n`` (N,); ``torque_per_n_B`` (N, 3) = r x d; ``mu_B_rad_s2`` (N, 3)
-    = J^-1 (r x F), the angular acceleration of each thruster (seed 004 section 3);
-    ``accel_B_m_s2`` (N, 3) = F / m; ``mdot_kg_s`` (N,) = F / (Isp g0); ``manifold_of`` (N,)
-    manifold index of each thruster.
-    """
-
-    names: tuple[str, ...]
-    manifolds: tuple[str, ...]
-    J_B_kg_m2: np.ndarray
-    J_inv_B: np.ndarray
-    mass_kg: float
-    r_B_m: np.ndarray
-    d_B: np.ndarray
-    thrust_n: np.ndarray
-    torque_per_n_B: np.ndarray
-    mu_B_rad_s2: np.ndarray
-    accel_B_m_s2: np.ndarray
-    mdot_kg_s: np.ndarray
-    manifold_of: np.ndarray
-
-    @classmethod
-    def from_vehicle(cls, v: VehicleCfg) -> VehicleArrays:
-        J = np.array(v.inertia_B_kg_m2, dtype=float)
-        J_inv = np.linalg.inv(J)
-        com = np.array(v.com_m, dtype=float)
-        r = np.array([t.position_m for t in v.thrusters], dtype=float) - com
-        d = np.array([t.direction for t in v.thrusters], dtype=float)
-        d = d / np.linalg.norm(d, axis=1, keepdims=True)
-        F = np.array([t.thrust_n for t in v.thrusters], dtype=float)
-        tq = np.cross(r, d)
-        mu = (J_inv @ (tq * F[:, None]).T).T
-        isp = np.array([t.isp_s for t in v.thrusters], dtype=float)
-        man = np.array([v.manifolds.index(t.manifold) for t in v.thrusters], dtype=int)
-        arrays = (J, J_inv, r, d, F, tq, mu, d * F[:, None] / v.mass_kg, F / (isp * G0_M_S2), man)
-        for a in arrays:
-            a.setflags(write=False)
-        return cls(
-            names=tuple(t.name for t in v.thrusters),
-            manifolds=tuple(v.manifolds),
-            J_B_kg_m2=J,
-            J_inv_B=J_inv,
-            mass_kg=float(v.mass_kg),
-            r_B_m=r,
-            d_B=d,
-            thrust_n=F,
-            torque_per_n_B=tq,
-            mu_B_rad_s2=mu,
-            accel_B_m_s2=arrays[7],
-            mdot_kg_s=arrays[8],
-            manifold_of=man,
-        )

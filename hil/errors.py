@@ -1,73 +1,23 @@
-"""One exception tree for the whole project.
+"""The shell's errors, and the whole exception tree gathered for the shell's ``except`` clauses.
 
-Two families are kept apart (STYLE.md habit 5):
-
-* ``HilError`` subclasses raised at set-up time or on programmer error ("we misused it"):
-  bad configuration, bad CLI argument, bad fault command, encoding a value out of range.
-* ``PeerError`` subclasses describe junk that came from the other side of the bus. The
-  receive loops never let them escape: they become counters and events.
-
-Messages follow one form: ``<where>: <what was expected>, got <what was found>``.
+Each package owns its errors (``common.errors`` the root and ``ConfigError``, ``bus.errors``,
+``plant.errors``, ``flight.errors``); this module adds the command line's ``UsageError`` and
+re-exports the others so that a shell module (or a test) names any of them from one place.
+``hil.cli`` prints every ``HilError`` as one ``error: ...`` line and exits 2.
 """
 
 from __future__ import annotations
 
-SHOWN_MAX_CHARS = 120
+from bus.errors import BusError, CatalogError, EncodeError
+from common.errors import ConfigError, HilError, PeerError, Raw
+from flight.errors import ThresholdError
+from plant.errors import FaultCommandError
 
-
-def one_line(text: str) -> str:
-    """``text`` with every non-printable character escaped (a key holding a newline or a
-    carriage return must not break the one-line error)."""
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
-
-
-class HilError(Exception):
-    """Root of every exception the project raises on purpose."""
-
-
-class Raw(str):
-    """A ``found`` value printed as is (not quoted), e.g. ``nothing`` for a missing field."""
-
-
-class ConfigError(HilError):
-    """A configuration file (vehicle, scenario, bus) is invalid.
-
-    ``str(err)`` is one line: ``file: field.path: expected ..., got ...``.
-    """
-
-    def __init__(self, where: str, field: str, expected: str, found: object) -> None:
-        self.where = where
-        self.field = field
-        self.expected = expected
-        self.found = found
-        loc = one_line(f"{where}: {field}" if field else where)
-        shown = one_line(str(found)) if isinstance(found, Raw) else repr(found)
-        if len(shown) > SHOWN_MAX_CHARS:  # one line, whatever the input held
-            shown = f"{shown[:SHOWN_MAX_CHARS]}... ({len(shown)} characters)"
-        super().__init__(f"{loc}: expected {expected}, got {shown}")
+__all__ = [
+    "BusError", "CatalogError", "ConfigError", "EncodeError", "FaultCommandError", "HilError",
+    "PeerError", "Raw", "ThresholdError", "UsageError",
+]
 
 
 class UsageError(HilError):
     """A command-line argument is invalid (exit code 2)."""
-
-
-class FaultCommandError(HilError):
-    """A fault to inject is invalid (unknown thruster, fraction out of [0, 1], negative time...)."""
-
-
-class CatalogError(HilError):
-    """The message catalog is inconsistent (duplicate ID, signal overlap...)."""
-
-
-class EncodeError(HilError):
-    """We tried to encode a value that the catalog does not allow (programmer error)."""
-
-
-class BusError(HilError):
-    """The transport could not be opened or used (interface missing, permission denied)."""
-
-
-class PeerError(Exception):
-    """Junk from the other side of the bus. Never escapes a receive loop; counted instead."""

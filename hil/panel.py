@@ -1,4 +1,4 @@
-"""`hil fault`: the fault panel, a third node on the bus (DESIGN.md section 2).
+"""`hil fault`: the fault panel, a third node on the bus (docs/design.md section 2).
 
 ``hil fault inject --thruster NAME --type stuck_on|fail_to_fire|degraded [--fraction F]
 [--at T] [--clear-at T]`` sends FAULT_CMD to the running plant and waits for its FAULT_ACK;
@@ -27,13 +27,13 @@ from pathlib import Path
 from bus.catalog import AckReason, AckStatus, FaultAction, FaultKind
 from bus.codec import FaultAck, FaultCmd
 from hil.argtypes import number
-from hil.config import MAX_DURATION_S, VehicleCfg, load_vehicle
+from hil.binding import fault_cmd_inject
+from hil.config import MAX_DURATION_S, THRUSTER_FAULTS, VehicleCfg, load_vehicle
 from hil.errors import BusError, FaultCommandError, UsageError
 from hil.recorder import read_jsonl
 from hil.summary import apply_clear
 
-TYPES = {"stuck_on": FaultKind.STUCK_ON, "fail_to_fire": FaultKind.FAIL_TO_FIRE,
-         "degraded": FaultKind.DEGRADED}
+TYPES = THRUSTER_FAULTS  # what the panel injects (gyro and bus faults come from scenarios)
 
 
 def build_command(vehicle: str | VehicleCfg, action: str, thruster: str | None,
@@ -66,8 +66,7 @@ def build_command(vehicle: str | VehicleCfg, action: str, thruster: str | None,
         raise FaultCommandError(f"fault: --at: expected a time >= 0 s, got {at_s}")
     if clear_at_s is not None and clear_at_s <= (at_s or 0.0):
         raise FaultCommandError(f"fault: --clear-at: expected a time after --at, got {clear_at_s}")
-    return FaultCmd(request_id, FaultAction.INJECT, TYPES[kind], idx, fraction,
-                    at_s or 0.0, clear_at_s)
+    return fault_cmd_inject(request_id, kind, idx, fraction, at_s or 0.0, clear_at_s)
 
 
 RESEND_S = 0.25  # no FAULT_ACK after this long: send the request again (see send_and_wait)

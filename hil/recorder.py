@@ -3,9 +3,9 @@
 Each process appends one JSON object per tick to its own file in the run directory
 (``plant.jsonl``: the truth; ``flight.jsonl``: the flight software's view) and flushes it at
 once, so a killed process leaves every tick up to the kill on disk. The rerun recording
-(``run.rrd``) puts both on one timeline (``tick`` sequence and ``sim_time`` duration); the
-supervisor appends what the processes wrote every 50 ms and flushes, and ``build_rrd`` rebuilds
-it from the JSON lines after any crash.
+(``run.rrd``) puts both on one timeline (``tick`` sequence and ``sim_time`` duration);
+``build_rrd`` makes it from the JSON lines after the run (``hil run``), and with a live viewer
+(``hil up --viewer``) the supervisor appends what the processes wrote every 50 ms instead.
 
 A record is ``{"tick": n, "t_s": t, "series": {path: {label: value, ...}}, "events": [...]}``.
 Every series becomes one rerun entity holding one scalar per label (one line per label in the
@@ -35,7 +35,6 @@ time-series view). Entity paths (documented in the README):
 from __future__ import annotations
 
 import json
-import math
 import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -66,20 +65,6 @@ class JsonlWriter:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
-
-
-def newly_active_faults(entries: Iterable[Any], reported: set[int],
-                        t_s: float) -> list[dict[str, Any]]:
-    """Records of the plant's fault entries active by ``t_s`` and not yet in ``reported``
-    (which is updated): the ``faults_injected`` field of ``plant.jsonl``."""
-    out = []
-    for e in entries:
-        if e.id not in reported and e.t_on_s <= t_s + 1e-9:
-            reported.add(e.id)
-            out.append({"t_s": round(e.t_on_s, 6), "thruster": e.spec.thruster,
-                        "type": e.spec.kind, "fraction": e.spec.effective_fraction,
-                        "clear_t_s": None if math.isinf(e.t_off_s) else e.t_off_s})
-    return out
 
 
 def read_jsonl(path: Path) -> Iterator[dict[str, Any]]:

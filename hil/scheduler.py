@@ -1,8 +1,8 @@
 """Strict tick scheduler: one base tick, rate groups as divisors, absolute releases, overruns.
 
-Modelled on F Prime's ``Svc/RateGroupDriver`` + ``ActiveRateGroup`` (STYLE.md): a base tick of
+Modelled on F Prime's ``Svc/RateGroupDriver`` + ``ActiveRateGroup`` (docs/style.md): a base tick of
 ``tick_ns`` drives rate groups given as ``(divisor, offset)``; a group runs on base tick ``n``
-when ``n % divisor == offset``. Releases are on an absolute grid ``t0 + n * tick`` (DESIGN.md
+when ``n % divisor == offset``. Releases are on an absolute grid ``t0 + n * tick`` (docs/design.md
 section 3: never "sleep h after the work", so no drift). A tick whose work ends after the next
 release is an *overrun* (F Prime's "slip"): it is counted, reported as an event, and the
 scheduler skips to the next release still ahead on the grid; the skipped releases are counted

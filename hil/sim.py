@@ -1,10 +1,11 @@
 """In-process lockstep: the plant core and the flight core in one Python process, no bus.
 
-The same tick as the processes' lockstep (``hil/nodes.py``), without sockets: at tick n the
-plant integrates to ``t_n``, the newest gyro sample available by then goes through the GYRO
-codec (so the flight sees the bus's quantisation and range), the flight computes its tick, the
-command goes through the THR_CMD codec and is applied at ``t_n`` plus the configured command
-latency, and the plant integrates on. A scenario gives the same detections here as over vcan
+The same tick as the processes' lockstep (``hil.plant_shell``, ``hil.flight_shell``), without
+sockets: at tick n the plant integrates to ``t_n``, the newest gyro sample available by then goes
+through the GYRO codec (so the flight sees the bus's quantisation and range), the flight computes
+its tick, the command goes through the THR_CMD codec (both conversions are the process shells'
+own, ``hil.binding``) and is applied at ``t_n`` plus the configured command latency, and the
+plant integrates on. A scenario gives the same detections here as over vcan
 in lockstep (the integration tests check both); this path exists to tune and test the cores in
 a fraction of the time (``hil sim S.yaml``), and it is what the unit tests of the reference
 scenarios run. The verdict is built by ``hil.summary.summarise`` from the same record fields
@@ -13,7 +14,6 @@ the processes write.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -22,13 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from bus.codec import Gyro, ThrCmd, decode, encode
+from bus.codec import Gyro
+from common.units import DEG
+from hil.binding import gyro_message, over_the_wire, plant_command, thr_cmd
 from hil.config import Scenario, load_scenario
-from hil.recorder import newly_active_faults
+from hil.records import detection_record, newly_active_faults, truth_fields
 from hil.summary import summarise
-
-DEG = 180.0 / math.pi
-GYRO_RANGE_RAD_S = 0.2  # the GYRO signal's range (bus catalog); the plant shell clips to it
 
 
 @dataclass
@@ -47,7 +46,7 @@ class SimRun:
 def simulate(sc: Scenario | str | Path, *, keep: bool = False,
              on_tick: Callable[[int, Any, Any], None] | None = None) -> SimRun:
     """Run scenario ``sc`` to its end in this process; see the module doc."""
-    from flight.attitude import error_quaternion, rotation_angle
+    from flight.attitude import error_quaternion
     from flight.software import FlightSoftware
     from plant.core import Plant
 
@@ -74,19 +73,11 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
         plant.advance_to(t_n)
         ready = plant.gyro_samples_until(t_n)
         if ready:
-            s = ready[-1]
-            rate = np.clip(np.asarray(s.rate_B_rad_s, dtype=float),
-                           -GYRO_RANGE_RAD_S, GYRO_RANGE_RAD_S)
-            gyro = decode(encode(Gyro(s.seq & 0xFFFF, tuple(float(x) for x in rate),
-                                      int(s.status) or 1)))
+            gyro = over_the_wire(gyro_message(ready[-1]))
         omega = np.zeros(3) if gyro is None else np.asarray(gyro.omega_B_rad_s)
         out = fs.step(n, omega)
-        mask = sum(1 << m for m, o in enumerate(out.manifold_open) if o)
-        cmd = decode(encode(ThrCmd(n, tuple(int(x) // 10 for x in out.on_ms), mask,
-                                   gyro.sample_seq if gyro else 0)))
-        on_ms = np.asarray(cmd.on_quanta, dtype=float) * 10.0
-        man = np.array([(cmd.manifold_enable >> m) & 1 for m in range(len(out.manifold_open))],
-                       dtype=bool)
+        cmd = over_the_wire(thr_cmd(n, out, gyro.sample_seq if gyro else 0))
+        on_ms, man = plant_command(cmd, len(out.manifold_open))
         plant.apply_command(n, plant.apply_time(t_n), on_ms, man)
         plant.advance_to(t_n + h)
 
@@ -94,18 +85,11 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
         injected = newly_active_faults(plant.faults.entries, reported, tr.t_s)
         plant_recs.append({
             "tick": n, "t_s": round(tr.t_s, 9), "faults_injected": injected,
-            "att_err_deg": float(rotation_angle(error_quaternion(target, tr.q_BO)) * DEG),
-            "rate_err_deg_s": float(np.linalg.norm(tr.omega_BO_B_rad_s) * DEG),
+            **truth_fields(tr, error_quaternion(target, tr.q_BO)),
             "omega_deg_s": [float(x) * DEG for x in tr.omega_BO_B_rad_s],
-            "fuel_kg": float(np.sum(tr.fuel_kg)),
-            "dv_B_m_s": [float(x) for x in tr.dv_B_m_s],
         })
-        det = None
-        if out.detection is not None:
-            d = out.detection
-            grp = [names[i] for i in d.group]
-            det = {"t_s": round(t_n, 6), "tick": n, "thruster": grp[0] if len(grp) == 1 else grp,
-                   "type": d.kind, "source": d.source, "rho": float(d.rho)}
+        det = (None if out.detection is None
+               else detection_record(out.detection, n, h, names))
         flight_recs.append({"tick": n, "t_s": round(t_n, 6), "detection": det})
         if keep:
             outputs.append(out)

@@ -1,7 +1,7 @@
 """Verdict of a run: detections matched to injected faults, false alarms, misses, maxima, timing.
 
 Pure: works on the per-tick records the plant and flight processes write (``plant.jsonl``,
-``flight.jsonl``, see ``hil.recorder``) and on the scenario. The fields of ``summary.json``:
+``flight.jsonl``, declared in ``hil.records``) and on the scenario. The fields of ``summary.json``:
 
 ``scenario, vehicle, mode, faults[{t_s, thruster, type, fraction}], detections[{t_s, thruster,
 type, latency_s, correct}], false_alarms, missed_faults, max_attitude_error_deg,
@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from hil.config import ExpectationsCfg
+from hil.records import FlightRecord, PlantRecord
 from hil.verdict import run_integrity, verdict_of
 
 COMPATIBLE = {
@@ -174,8 +175,8 @@ def summarise(
     scenario: str,
     vehicle: str,
     mode: str,
-    plant_records: list[dict[str, Any]],
-    flight_records: list[dict[str, Any]],
+    plant_records: list[PlantRecord],
+    flight_records: list[FlightRecord],
     expect: ExpectationsCfg | None,
     extra: dict[str, Any] | None = None,
     expected_ticks: int | None = None,

@@ -1,6 +1,11 @@
 """Run a command inside user-mode Linux: a real vcan0 even where the host kernel has no CAN.
 
-DESIGN.md section 4, "A kernel without CAN". Debian's ``user-mode-linux`` package ships a Linux
+(Over 600 lines on purpose: one concern, a boot that must not leave anything behind. The
+kernel arguments, the generated init script, the status protocol between the init script and
+this process, and the clean-up of UML's process group are one sequence, each step relying on
+the previous one's details; split, each part would need the others to be read.)
+
+docs/design.md section 4, "A kernel without CAN". Debian's ``user-mode-linux`` package ships a Linux
 kernel that runs as an ordinary process (``linux.uml``) together with the CAN modules. We boot
 it with the host's root file system as its root (hostfs), so the command sees the same files,
 the same working directory and the same virtual environment as on the host, and we give it a

@@ -1,6 +1,6 @@
 """A virtual SocketCAN interface: natively, or in user-mode Linux where the kernel has no CAN.
 
-DESIGN.md section 4. ``hil vcan up|down|status`` manage ``vcan0`` on this kernel.
+docs/design.md section 4. ``hil vcan up|down|status`` manage ``vcan0`` on this kernel.
 ``hil vcan exec -- COMMAND...`` is the transparent path that test scripts and ``hil run`` use:
 
 * ``vcan0`` already present here: run COMMAND natively (bringing the link up first if it is

@@ -38,14 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.config import (
-    G0_M_S2,
-    FaultSpec,
-    InitialCfg,
-    PlantOverridesCfg,
-    VehicleArrays,
-    VehicleCfg,
-)
+from common.scenario import FaultSpec, InitialCfg, PlantOverridesCfg
+from common.units import G0_M_S2
+from common.vehicle import VehicleArrays, VehicleCfg
 from plant.dynamics import RigidBody, orbit_rate_O, quat_to_dcm
 from plant.faults import FaultEntry, FaultState
 from plant.flex import FlexModes, influence_matrix

@@ -1,6 +1,6 @@
-"""Rigid-body rotation and kinematics (DESIGN.md 5.1; seed 003 eq. 1; seed 004 orbit frame).
+"""Rigid-body rotation and kinematics (docs/design.md 5.1; seed 003 eq. 1; seed 004 orbit frame).
 
-Euler's equation in body axes B with CMG momentum ``H`` (seed 003 eq. 1, DESIGN.md 5.1)::
+Euler's equation in body axes B with CMG momentum ``H`` (seed 003 eq. 1, docs/design.md 5.1)::
 
     J dw/dt + w x (J w + H) = M_ext + M_gg - dH/dt
 
@@ -16,7 +16,7 @@ at t = 0; the orbit frame turns about z' = z_I with angular velocity ``-w0 z'``,
 ``q_OI(t) = [cos(w0 t / 2), 0, 0, -sin(w0 t / 2)]`` and the local vertical in inertial axes is
 ``y'_I(t) = [sin w0 t, cos w0 t, 0]``. For ``w0 = 0`` the orbit frame is inertial.
 
-Gravity gradient (DESIGN.md 5.1): ``M_gg = 3 w0^2 (j x J j)``, ``j`` the local vertical in B.
+Gravity gradient (docs/design.md 5.1): ``M_gg = 3 w0^2 (j x J j)``, ``j`` the local vertical in B.
 
 Integration: classic fixed-step RK4 with the external torque held constant over the step (the
 thrust torque is the exact mean over the step, from the exact impulse), the gravity-gradient
@@ -30,8 +30,8 @@ import math
 
 import numpy as np
 
-from hil.quaternion import q_conj as quat_conj
-from hil.quaternion import q_mul as quat_mul
+from common.quaternion import q_conj as quat_conj
+from common.quaternion import q_mul as quat_mul
 
 # --------------------------------------------------------------------------- quaternions
 

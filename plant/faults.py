@@ -1,4 +1,4 @@
-"""Fault state of the plant (DESIGN.md 5.6): what is injected, when it is active, its effect.
+"""Fault state of the plant (docs/design.md 5.6): what is injected, when it is active, its effect.
 
 A fault is a validated ``FaultSpec`` with an activity window ``[t_on_s, t_off_s)``
 (``t_off_s = clear_t_s`` or infinity until cleared). Effects, queried by time:
@@ -28,8 +28,11 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
-from hil.config import BUS_FAULTS, GYRO_FAULTS, THRUSTER_FAULTS, FaultSpec, VehicleCfg
-from hil.errors import ConfigError, FaultCommandError
+from common.errors import ConfigError
+from common.scenario import BUS_FAULTS, GYRO_FAULTS, THRUSTER_FAULTS, FaultSpec
+from common.schema import config_error
+from common.vehicle import VehicleCfg
+from plant.errors import FaultCommandError
 
 
 def _fault_error(field: str, expected: str, found: object) -> FaultCommandError:
@@ -54,9 +57,7 @@ def validate_fault(vehicle: VehicleCfg, fault: FaultSpec | Mapping[str, Any]) ->
         try:
             fault = FaultSpec.model_validate(raw)
         except ValidationError as exc:
-            from hil.config import _config_error  # the project's one-line pydantic rendering
-
-            err: ConfigError = _config_error("fault", exc)
+            err: ConfigError = config_error("fault", exc)
             raise FaultCommandError(str(err)) from None
     names = [t.name for t in vehicle.thrusters]
     if fault.thruster is not None and fault.thruster not in names:

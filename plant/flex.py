@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from hil.config import FlexModeCfg
+from common.vehicle import FlexModeCfg
 
 
 def influence_matrix(modes: list[FlexModeCfg], names: tuple[str, ...], r_B_m: np.ndarray,

@@ -36,7 +36,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from hil.config import GyroCfg
+from common.vehicle import GyroCfg
 from plant.faults import FaultState
 
 

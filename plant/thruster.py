@@ -44,8 +44,8 @@ import numpy as np
 from scipy.special import erf, gammainc
 from scipy.special import gamma as _gamma
 
-from hil.config import ThrustProfileCfg, TimingCfg
-from hil.errors import ConfigError
+from common.errors import ConfigError
+from common.vehicle import ThrustProfileCfg, TimingCfg
 
 LN100 = math.log(100.0)
 # exp(-50) ~ 2e-22: a segment this far past its origin is at its target to double precision.
@@ -165,7 +165,7 @@ def _e_vec(k: float, n: float, full: float, x: np.ndarray) -> np.ndarray:
 
 
 def allowed_on_ms(timing: TimingCfg) -> tuple[int, ...]:
-    """Allowed on-durations per tick in ms (seed 004 section 4; DESIGN.md section 3).
+    """Allowed on-durations per tick in ms (seed 004 section 4; docs/design.md section 3).
 
     ``{0} U {min_on .. tick - min_off step quantum} U {tick}``: ``(0, 30, 40, ..., 170, 200)``
     for the default timing (180 and 190 are impossible: a 30 ms pause must remain).
@@ -181,7 +181,7 @@ def allowed_on_ms(timing: TimingCfg) -> tuple[int, ...]:
 def clamp_on_ms(on_ms: np.ndarray, allowed: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Map received on-durations to the nearest allowed value (ties to the shorter one).
 
-    The plant takes whatever arrives from the bus and must not crash on it (STYLE.md habit 6):
+    The plant takes whatever arrives from the bus and must not crash on it (docs/style.md habit 6):
     an out-of-set value is replaced, and the caller counts it. Returns ``(applied_ms (N,) int,
     clamped (N,) bool)``.
     """

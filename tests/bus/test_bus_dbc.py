@@ -3,9 +3,9 @@
 import cantools
 
 from bus.catalog import CATALOG, bus_load
-from bus.cli import load_table
 from bus.dbc import DBC_PATH, dbc_text
 from hil.cli import main
+from hil.dbc_cmd import load_table
 
 
 def test_committed_dbc_matches_catalog():
@@ -35,7 +35,7 @@ def test_cli_check_and_out(tmp_path, capsys):
 def test_cli_check_detects_difference(monkeypatch, tmp_path):
     stale = tmp_path / "hil.dbc"
     stale.write_text('VERSION "old"\n')
-    monkeypatch.setattr("bus.cli.DBC_PATH", stale)
+    monkeypatch.setattr("hil.dbc_cmd.DBC_PATH", stale)
     assert main(["dbc", "--check"]) == 1
 
 
@@ -50,7 +50,7 @@ def test_bus_load_independent_formula(capsys):
     got = {name: bps for name, bps, _ in bus_load(1_000_000)}
     assert got == expected
     total = sum(expected.values())
-    assert total / 1e6 < 0.05  # far below 100 % (DESIGN.md section 4)
+    assert total / 1e6 < 0.05  # far below 100 % (docs/design.md section 4)
     assert main(["dbc", "--load", "--bitrate", "1000000"]) == 0
     assert f"{total:.0f}" in capsys.readouterr().out
     assert "total" in load_table(500_000)

@@ -1,9 +1,10 @@
 """Receive times over socketcan vcan0 are the kernel's (SO_TIMESTAMPNS), in CLOCK_REALTIME.
 
-``bus/transport.py``: python-can sets ``SO_TIMESTAMPNS`` on its socket; ``_RawSocketcan.drain``
-(the path ``Port.poll`` takes on socketcan) reads the ``struct timespec`` from the ancillary
-data of ``recvmsg``. The module documents ``Port.clock == "realtime"`` and the explicit
-conversion ``Port.to_monotonic_s(t) = t + monotonic_offset_s``, the offset being
+``bus/transport.py``: python-can sets ``SO_TIMESTAMPNS`` on its socket;
+``FastSocketcanBus.drain_frames`` (the path ``Port.poll`` takes on socketcan) reads the
+``struct timespec`` from the ancillary data of ``recvmsg``. The module documents
+``Port.clock == "realtime"`` and the explicit conversion
+``Port.to_monotonic_s(t) = t + monotonic_offset_s``, the offset being
 ``time.monotonic() - time.time()`` sampled once when the port opens.
 
 Oracles, with no assertion on speed:

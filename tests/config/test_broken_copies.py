@@ -1,4 +1,4 @@
-"""Broken copies of every shipped vehicle and of several shipped scenarios (STYLE.md habit 5).
+"""Broken copies of every shipped vehicle and of several shipped scenarios (docs/style.md habit 5).
 
 Each copy is the shipped YAML with one mutation. ``hil config check COPY`` must exit 2 and
 print exactly one line on stderr, ``error: <file>: <field path>: expected ..., got <value>``,

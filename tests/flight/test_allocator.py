@@ -15,7 +15,8 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import linprog
 
-from flight.allocator import INFEASIBLE, OPTIMAL, Allocator, dual_simplex, linprog_solve
+from flight.allocator import Allocator
+from flight.lp import INFEASIBLE, OPTIMAL, dual_simplex, linprog_solve
 from flight.quantise import PulseSet, Quantiser
 from hil.config import VEHICLE_DIR, VehicleArrays, VehicleCfg, load_vehicle
 

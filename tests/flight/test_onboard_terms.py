@@ -1,7 +1,7 @@
 """Onboard model (seed 003 eq. 9): gravity-gradient and CMG terms against closed forms.
 
 Euler's equation with internal (CMG) momentum ``H`` and the gravity-gradient torque of a circular
-orbit (seed 003 eq. 9; DESIGN.md 6.3)::
+orbit (seed 003 eq. 9; docs/design.md 6.3)::
 
     J dw/dt = -w x (J w + H) - dH/dt + 3 w0^2 (j x J j)
 

@@ -1,4 +1,4 @@
-"""Thresholds tool (DESIGN 6.4 step 6) and `hil thresholds`."""
+"""Thresholds tool (docs/design.md 6.4 step 6) and `hil thresholds`."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
+from flight.errors import ThresholdError
 from flight.thresholds import progression, propose, ticks_to_reach
 from hil.cli import main
-from hil.errors import UsageError
 
 
 def test_progression_closed_form() -> None:
@@ -45,8 +45,10 @@ def test_sequences_from_a_file(tmp_path, capsys) -> None:
 
 def test_errors_are_one_line(tmp_path, capsys) -> None:
     assert main(["thresholds", "--detection-time", "-1"]) == 2
-    assert capsys.readouterr().err == "error: --detection-time: expected > 0 s, got -1\n"
+    assert capsys.readouterr().err == (
+        "error: hil thresholds: argument --detection-time: expected a finite number > 0 and "
+        "<= 86400, got '-1' (see hil thresholds --help)\n")
     assert main(["thresholds", "--detection-time", "1", "--stats", str(tmp_path / "x.json")]) == 2
     assert "no such file" in capsys.readouterr().err
-    with pytest.raises(UsageError):
+    with pytest.raises(ThresholdError):
         propose(0.2, 0.2, xi_max=1.0, run=5, margin=10.0)

@@ -1,7 +1,7 @@
 """`hil bench`, pure parts: figures from records, goals, sanity checks, table, JSON, hogs.
 
 Nothing here measures time: the figures come from synthetic per-tick records, and no test
-compares a figure with a time limit (STYLE.md habit 8).
+compares a figure with a time limit (docs/style.md habit 8).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from hil import bench
+from hil import bench, bench_table, timing
 from hil.errors import UsageError
 
 H = 0.2
@@ -49,13 +49,13 @@ def plant_records(n: int = 20, last_seq: int = 26) -> list[dict]:
 
 
 def test_stats_ms_counts_and_skips_none() -> None:
-    s = bench.stats_ms([0.001, None, 0.003, 0.002])
+    s = timing.stats_ms([0.001, None, 0.003, 0.002])
     assert s["n"] == 3 and s["p50"] == 2.0 and s["max"] == 3.0
-    assert bench.stats_ms([]) == {"p50": None, "p99": None, "max": None, "n": 0}
+    assert timing.stats_ms([]) == {"p50": None, "p99": None, "max": None, "n": 0}
 
 
 def test_realtime_figures_cut_warmup_and_ticks_after_the_plant() -> None:
-    f = bench.realtime_figures(plant_records(), flight_records(), H, warmup_ticks=5)
+    f = timing.realtime_figures(plant_records(), flight_records(), H, warmup_ticks=5)
     # samples up to 26 were published: ticks 17..19 (samples 27..29) came after the end
     assert f["ticks"] == 20 and f["ticks_after_plant_end"] == 3 and f["ticks_used"] == 12
     assert f["release_jitter_ms"]["max"] == pytest.approx(0.3)
@@ -75,22 +75,22 @@ def test_sample_counter_wrap_does_not_cut_ticks() -> None:
     fl = flight_records(4)
     for r in fl:
         r["gyro_seq_expected"] = (65534 + r["tick"]) % 65536
-    f = bench.realtime_figures(plant_records(4, last_seq=1), fl, H, warmup_ticks=0)
+    f = timing.realtime_figures(plant_records(4, last_seq=1), fl, H, warmup_ticks=0)
     assert f["ticks_after_plant_end"] == 0 and f["ticks_used"] == 4
 
 
 def test_timing_summary_for_a_run_keeps_every_tick_and_skips_lockstep() -> None:
-    t = bench.timing_summary(plant_records(), flight_records(), H)
+    t = timing.timing_summary(plant_records(), flight_records(), H)
     assert t["release_jitter_ms"]["n"] == 17 and t["s2a_ms"]["n"] == 20
     lock = [{**r, "jitter_s": None} for r in flight_records()]
-    assert bench.timing_summary(plant_records(), lock, H) == {}
+    assert timing.timing_summary(plant_records(), lock, H) == {}
 
 
 def test_lockstep_figures() -> None:
     recs = [{"tick": k, "t_s": k * H, "sync_to_cmd_s": 0.004, "deadline_misses": 0}
             for k in range(1, 101)] + [{"tick": 100, "t_s": 20.0, "final": True,
                                         "wall_s": 1.0, "cpu_s": 0.5}]
-    f = bench.lockstep_figures(recs, {"speed_x_realtime": 8.0, "wall_s": 2.5})
+    f = timing.lockstep_figures(recs, {"speed_x_realtime": 8.0, "wall_s": 2.5})
     assert f["speed_x_realtime"] == 20.0 and f["end_to_end_x_realtime"] == 8.0
     assert f["sync_to_cmd_ms"]["p50"] == pytest.approx(4.0) and f["ticks"] == 100
 
@@ -104,7 +104,7 @@ def test_bus_load_from_the_catalog() -> None:
 
 
 def good_report() -> dict:
-    rt = bench.realtime_figures(plant_records(), flight_records(), H, warmup_ticks=5)
+    rt = timing.realtime_figures(plant_records(), flight_records(), H, warmup_ticks=5)
     w = {"kernel": "native kernel", "cpus": 2}
     rt["where"] = {**w, "sched": {"flight": "SCHED_OTHER", "plant": "SCHED_BATCH"}}
     trip = {"p50": 0.5, "p99": 0.9, "max": 1.2, "n": 100}
@@ -123,7 +123,7 @@ def good_report() -> dict:
 
 
 def test_a_complete_report_has_no_problem() -> None:
-    assert bench.check_figures(good_report()) == []
+    assert bench_table.check_figures(good_report()) == []
 
 
 @pytest.mark.parametrize(("mutate", "expected"), [
@@ -144,28 +144,28 @@ def test_a_complete_report_has_no_problem() -> None:
 def test_check_figures_names_the_missing_or_odd_figure(mutate, expected) -> None:
     r = good_report()
     mutate(r)
-    problems = bench.check_figures(r)
+    problems = bench_table.check_figures(r)
     assert problems and any(p.startswith(expected) for p in problems), problems
 
 
 def test_check_only_the_parts_measured() -> None:
     r = good_report()
     del r["lockstep"], r["bus"]
-    assert bench.check_figures(r, ("realtime", "allocator", "load")) == []
+    assert bench_table.check_figures(r, ("realtime", "allocator", "load")) == []
 
 
 def test_goals_are_information_with_the_bus_latency_in_the_latency_goal() -> None:
-    g = {x["goal"]: x for x in bench.goals(good_report())}
+    g = {x["goal"]: x for x in bench_table.goals(good_report())}
     s2a = g["sensor-to-actuator p99 < 5 ms + bus one-way p99"]
     assert s2a["limit"] == pytest.approx(5.9) and s2a["met"] is (s2a["value"] < 5.9)
     assert g["no overrun"]["met"] is False and g["lockstep >= 20x real time"]["met"] is True
-    assert bench.goals({})[0]["met"] is None  # nothing measured: no verdict either way
+    assert bench_table.goals({})[0]["met"] is None  # nothing measured: no verdict either way
 
 
 def test_table_names_every_figure_and_where() -> None:
     r = good_report()
-    r["goals"] = bench.goals(r)
-    text = bench.format_table(r)
+    r["goals"] = bench_table.goals(r)
+    text = bench_table.format_table(r)
     for needle in ("tick release jitter", "compute allocator", "compute I/O", "share of the",
                    "sensor-to-actuator", "lockstep speed (loop)", "round trip A->B->A",
                    "linprog / simplex", "bus load from the catalog", "native kernel",
@@ -217,4 +217,4 @@ def test_an_overrun_tick_is_a_figure_not_a_problem() -> None:
     r = good_report()
     r["realtime"]["tick_share"].update(max=1.3)  # one tick longer than the tick: counted
     r["realtime"]["compute_ms"].update(max=260.0)
-    assert bench.check_figures(r) == []
+    assert bench_table.check_figures(r) == []

@@ -1,4 +1,4 @@
-"""`hil fault` against a running plant, in one process: the plant shell (``hil.nodes``) on
+"""`hil fault` against a running plant, in one process: the plant shell (``hil.plant_shell``) on
 python-can's ``virtual`` bus answers FAULT_CMD with FAULT_ACK from a thread and writes its
 records into a run folder, as ``hil up`` does; the panel learns the vehicle from that folder.
 """
@@ -17,8 +17,10 @@ import pytest
 from bus.codec import FaultCmd
 from hil.cli import main
 from hil.config import load_scenario
-from hil.nodes import PlantShell, _open_port, build_parser
+from hil.node_settings import parse_settings
+from hil.node_shell import open_port
 from hil.panel import active_faults
+from hil.plant_shell import PlantShell
 
 
 class _RunningPlant:
@@ -30,10 +32,10 @@ class _RunningPlant:
         self.run.mkdir()
         scen = tmp_path / "up.yaml"
         scen.write_text("name: up-orel\nvehicle: orel\nduration_s: 60.0\n")
-        args = build_parser().parse_args(
+        args = parse_settings(
             ["plant", "--scenario", str(scen), "--out", str(self.run), "--mode", "realtime",
              "--interface", "virtual", "--channel", self.channel])
-        self.shell = PlantShell(load_scenario(scen), _open_port(args, self.run, "plant"),
+        self.shell = PlantShell(load_scenario(scen), open_port(args, self.run, "plant"),
                                 self.run, args)
         self.tick = 0
         self.shell.record(self.tick)  # the first record: config (vehicle) for the panel

@@ -1,4 +1,4 @@
-"""Safe states (DESIGN.md section 4, issue 5 item 4), without sockets or with python-can's
+"""Safe states (docs/design.md section 4, issue 5 item 4), without sockets or with python-can's
 in-process ``virtual`` bus.
 
 Flight: safe mode (no firing, FDIR_STATUS safe flag, an event) after ``gyro_lost_ticks`` ticks
@@ -23,17 +23,12 @@ from bus.catalog import Node, NodeState
 from bus.codec import FdirStatus, Frame, Gyro, Heartbeat, ThrCmd
 from bus.transport import BusConfig, Port, open_bus
 from hil.config import load_scenario
-from hil.nodes import (
-    FlightLinkWatch,
-    FlightShell,
-    GyroLossWatch,
-    PlantShell,
-    _lockstep_receiver,
-    _open_port,
-    build_parser,
-    safety_settings,
-)
+from hil.flight_shell import FlightShell
+from hil.node_settings import parse_settings
+from hil.node_shell import lockstep_receiver, open_port
+from hil.plant_shell import PlantShell
 from hil.recorder import read_jsonl
+from hil.safe_states import FlightLinkWatch, GyroLossWatch, safety_settings
 
 
 def _scenario(tmp_path: Path, safety: str = "", duration_s: float = 30.0) -> Path:
@@ -45,7 +40,7 @@ def _scenario(tmp_path: Path, safety: str = "", duration_s: float = 30.0) -> Pat
 
 
 def _args(node: str, scen: Path, out: Path, channel: str, mode: str, *extra: str):
-    return build_parser().parse_args(
+    return parse_settings(
         [node, "--scenario", str(scen), "--out", str(out), "--mode", mode,
          "--interface", "virtual", "--channel", channel, *extra])
 
@@ -138,11 +133,11 @@ class _FlightBench:
         self.out = tmp_path / "flight"
         self.out.mkdir()
         args = _args("flight", scen, self.out, ch, "lockstep")
-        self.shell = FlightShell(load_scenario(scen), _open_port(args, self.out, "flight"),
+        self.shell = FlightShell(load_scenario(scen), open_port(args, self.out, "flight"),
                                  self.out, args)
         # Age limits of the lockstep (a loaded machine must not make frames stale here).
         self.plant = Port(open_bus(BusConfig(interface="virtual", channel=ch)),
-                          receiver=_lockstep_receiver(2.0))
+                          receiver=lockstep_receiver(2.0))
         self.seq = 0
 
     def gyro(self, corrupt: bool = False) -> None:
@@ -227,7 +222,7 @@ def _plant_bench(tmp_path: Path, safety: str, duration_s: float, mode: str):
     out.mkdir()
     extra = ["--reply-timeout", "0.05"] if mode == "lockstep" else []
     args = _args("plant", scen, out, ch, mode, *extra)
-    shell = PlantShell(load_scenario(scen), _open_port(args, out, "plant"), out, args)
+    shell = PlantShell(load_scenario(scen), open_port(args, out, "plant"), out, args)
     flight = Port(open_bus(BusConfig(interface="virtual", channel=ch)))
     return shell, flight, out
 

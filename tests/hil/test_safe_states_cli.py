@@ -12,11 +12,12 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import replace
 
 import pytest
 
 import hil.run
-from hil import nodes
+from hil import node_settings, node_shell, process_policy
 from hil.cli import main
 
 
@@ -71,9 +72,7 @@ def test_run_with_a_missing_scenario_exits_2_before_starting(tmp_path, capsys,
     ["run", "x.yaml", "--kill-flight-at", "soon"],
 ])
 def test_usage_errors_exit_2(capsys, no_start, argv) -> None:
-    with pytest.raises(SystemExit) as info:
-        main(argv)
-    assert info.value.code == 2
+    assert main(argv) == 2  # argparse's SystemExit(2) becomes the exit code
     assert "error: " in capsys.readouterr().err
 
 
@@ -103,7 +102,7 @@ def test_rt_reaches_the_node_command_lines(tmp_path) -> None:
     for node in ("flight", "plant"):
         cmd = hil.run._node_cmd(node, tmp_path / "s.yaml", tmp_path, args)
         assert cmd[-1] == "--rt-priority"
-        assert nodes.build_parser().parse_args(cmd[3:]).rt_priority  # after `-m hil.nodes`
+        assert node_settings.parse_settings(cmd[3:]).rt_priority  # after `-m hil.nodes`
 
 
 @pytest.mark.parametrize(("note", "event"), [
@@ -116,7 +115,7 @@ def test_rt_reaches_the_node_command_lines(tmp_path) -> None:
      "permitted), memory not locked (errno 1)"),
 ])
 def test_the_rt_event_says_what_was_refused(note, event) -> None:
-    assert nodes.realtime_event(note) == event
+    assert process_policy.realtime_event(note) == event
 
 
 def test_a_refused_sched_fifo_is_said(monkeypatch) -> None:
@@ -130,29 +129,55 @@ def test_a_refused_sched_fifo_is_said(monkeypatch) -> None:
             return -1
 
     asked: list[tuple] = []
-    monkeypatch.setattr(nodes.os, "sched_setscheduler", lambda *a: asked.append(a) or refuse())
+    monkeypatch.setattr(process_policy.os, "sched_setscheduler",
+                        lambda *a: asked.append(a) or refuse())
     monkeypatch.setattr(ctypes, "CDLL", lambda *a, **k: _Libc())
     monkeypatch.setattr(ctypes, "get_errno", lambda: 1)
-    note = nodes._try_realtime_priority("plant")
+    note = process_policy.try_realtime_priority("plant")
     assert asked[0][1] == os.SCHED_FIFO and asked[0][2].sched_priority == 40
     assert asked[1] == ("mlockall", 3)  # MCL_CURRENT | MCL_FUTURE
     assert note.endswith(", SCHED_FIFO refused (PermissionError: Operation not permitted), "
                          "memory not locked (errno 1)")
-    assert nodes.realtime_event(note).startswith("--rt refused: ")
-    assert nodes.RT_PRIORITY["flight"] > nodes.RT_PRIORITY["plant"]
+    assert process_policy.realtime_event(note).startswith("--rt refused: ")
+    assert process_policy.RT_PRIORITY["flight"] > process_policy.RT_PRIORITY["plant"]
 
 
 def test_the_rt_event_is_in_the_first_record(tmp_path) -> None:
     from hil.config import load_scenario
 
     scen = _scenario(tmp_path, "duration_s: 5\n")
-    args = nodes.build_parser().parse_args(
+    args = node_settings.parse_settings(
         ["flight", "--scenario", str(scen), "--out", str(tmp_path), "--interface", "virtual",
          "--channel", "rt-first-record", "--rt-priority"])
-    args.sched_note = "SCHED_OTHER, SCHED_FIFO refused (PermissionError: x), memory locked"
-    args.rt_event = nodes.realtime_event(args.sched_note)
-    first = nodes._first_record(load_scenario(scen), args, {"gyro_lost_ticks": 3})
+    note = "SCHED_OTHER, SCHED_FIFO refused (PermissionError: x), memory locked"
+    args = replace(args, sched_note=note, rt_event=process_policy.realtime_event(note))
+    first = node_shell.first_record(load_scenario(scen), args, {"gyro_lost_ticks": 3})
     assert first["sched"] == args.sched_note
     assert first["events"] == ["--rt partly refused: " + args.sched_note]
     assert first["config"]["vehicle"] == "generic"
     assert first["config"]["bus"] == "virtual rt-first-record"
+
+
+def test_start_after_waits_for_the_file_or_a_stop(tmp_path) -> None:
+    from hil.nodes import wait_for_file
+
+    flag = tmp_path / "flight.ready"
+    stops = iter([False, False, True])
+    assert not wait_for_file(flag, lambda: next(stops), poll_s=0.0)
+    flag.write_text("1")
+    assert wait_for_file(flag, lambda: True)  # present: no wait, whatever the stop flag says
+    args = argparse.Namespace(mode="lockstep", interface="virtual", channel="x",
+                              rt_priority=False)
+    cmd = hil.run._node_cmd("plant", tmp_path / "s.yaml", tmp_path, args, start_after=flag)
+    assert node_settings.parse_settings(cmd[3:]).start_after == str(flag)
+
+
+def test_the_speed_figure_leaves_start_up_out() -> None:
+    # Oracle: hand arithmetic. 240 s simulated, the plant's loop took 10 s from its first tick
+    # (at monotonic 103 s); the supervisor started at 100 s and the whole run took 16 s.
+    recs = [{"tick": 0, "t_s": 0.2}, {"tick": 1200, "t_s": 240.0, "final": True,
+                                       "wall_s": 10.0, "loop_t0_monotonic_s": 103.0}]
+    f = hil.run.speed_figures(recs, 240.0, 16.0, 100.0)
+    assert f["speed_x_realtime"] == 24.0 and f["loop_wall_s"] == 10.0
+    assert f["startup_s"] == 3.0 and f["end_to_end_x_realtime"] == 15.0
+    assert "start-up" in f["speed_basis"] and "excluded" in f["speed_basis"]

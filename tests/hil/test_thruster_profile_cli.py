@@ -1,4 +1,4 @@
-"""`hil thruster-profile` (plant.cli): lags and pulse impulses through the CLI entry point.
+"""`hil thruster-profile` (hil.thruster_profile_cmd): lags and pulse impulses via the CLI.
 
 Oracles: the configured lags of ``configs/vehicles/orel.yaml`` (seed 004 section 4: 30 ms on,
 27 ms off), the nominal thrust read from the same file, and seed 004's effective firing time
@@ -75,7 +75,7 @@ def test_json_constants_reproduce_the_lags_by_quadrature(report_json: dict) -> N
 
 def test_json_impulses_equal_p_nom_times_tau_minus_3_ms(report_json: dict) -> None:
     """Every allowed duration is listed; for tau >= 50 ms the impulse is ``P_nom (tau - 3 ms)``
-    within 1 % (DESIGN.md 5.4); 0 ms gives 0; the 30 and 40 ms pulses fall short (they never
+    within 1 % (docs/design.md 5.4); 0 ms gives 0; the 30 and 40 ms pulses fall short (they never
     reach P_nom), which the table reports as a negative deviation."""
     rows = {row["on_ms"]: row for row in report_json["pulses"]}
     assert sorted(rows) == ALLOWED_MS
@@ -145,7 +145,5 @@ def test_unknown_vehicle_through_the_console_script() -> None:
 
 
 def test_missing_vehicle_argument_is_a_usage_error(capsys) -> None:
-    with pytest.raises(SystemExit) as exc:
-        main(["thruster-profile"])
-    assert exc.value.code == 2
+    assert main(["thruster-profile"]) == 2
     assert "--vehicle" in capsys.readouterr().err

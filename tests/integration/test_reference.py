@@ -1,4 +1,4 @@
-"""Every reference scenario (DESIGN.md 8) through the real processes over vcan0, in lockstep.
+"""Every reference scenario (docs/design.md 8) through the real processes over vcan0, in lockstep.
 
 Marked ``reference``: the test command runs these on the host; ``hil run-all`` itself uses the
 native vcan0, or boots user-mode Linux instances (real vcan0 in each) where the kernel has no

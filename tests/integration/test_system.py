@@ -22,7 +22,8 @@ from hil.config import SCENARIO_DIR
 
 pytestmark = pytest.mark.vcan
 HIL = [sys.executable, "-m", "hil.cli"]
-WALL_FIELDS = ("wall_s", "speed_x_realtime", "compute_ms", "release_jitter_ms", "bus",
+WALL_FIELDS = ("wall_s", "speed_x_realtime", "loop_wall_s", "startup_s",
+               "end_to_end_x_realtime", "compute_ms", "release_jitter_ms", "bus",
                "bus_frames_logged", "where")
 
 

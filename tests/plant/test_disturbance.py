@@ -1,4 +1,4 @@
-"""Disturbances and excitation (DESIGN.md 5.1-5.2) against closed forms.
+"""Disturbances and excitation (docs/design.md 5.1-5.2) against closed forms.
 
 Rigid body ``J dw/dt + w x (J w + H) = M_ext - dH/dt`` (seed 003 eq. 1), kinematics
 ``dq/dt = 1/2 q (x) [0, w]``; flex modes ``q'' + 2 delta lambda q' + W^2 q = sum_j (f_j . F_j +

@@ -1,4 +1,5 @@
-"""Rigid body (DESIGN.md 5.1): conservation laws, closed forms, gravity gradient, orbit frame."""
+"""Rigid body (docs/design.md 5.1): conservation laws, closed forms, gravity gradient, orbit
+frame."""
 
 from __future__ import annotations
 

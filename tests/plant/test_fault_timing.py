@@ -1,4 +1,4 @@
-"""Fault timing (DESIGN.md 5.6; plant.faults): onset at ``t_s``, end at ``clear_t_s``, levels.
+"""Fault timing (docs/design.md 5.6; plant.faults): onset at ``t_s``, end at ``clear_t_s``, levels.
 
 A thruster fault changes the thruster's *target* at its own time, with no electrical delay
 (the valve itself fails; plant.thruster module doc), and the thrust then follows seed 004
@@ -86,7 +86,7 @@ def test_stuck_on_acts_exactly_from_t_s_until_clear_t_s(fraction: float) -> None
 
 
 def test_half_stuck_on_gives_half_thrust_commanded_off_and_full_commanded_on() -> None:
-    """50 % residual (DESIGN.md 5.6): commanded off, 0.5 P; commanded on (ticks 5..9), P; after
+    """50 % residual (docs/design.md 5.6): commanded off, 0.5 P; commanded on (ticks 5..9), P; after
     the off command the thrust decays from P toward 0.5 P (``0.5 + 0.5 exp(-k2 x)`` from
     t_off + T_R), then holds: 2 s of it give 0.5 P x 2 s and ``dw = 0.5 P r 2 s / J``."""
     plant = Plant(make_vehicle(), step_s=0.01)

@@ -1,4 +1,4 @@
-"""Thruster and manifold faults, fault validation (DESIGN.md 5.5, 5.6)."""
+"""Thruster and manifold faults, fault validation (docs/design.md 5.5, 5.6)."""
 
 from __future__ import annotations
 

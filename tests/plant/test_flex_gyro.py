@@ -164,7 +164,7 @@ def test_plant_is_deterministic_bit_for_bit() -> None:
 
 
 def test_core_modules_touch_no_clock_or_io() -> None:
-    """STYLE.md habit 1: the plant core imports no clock, socket, thread or process module."""
+    """docs/style.md habit 1: the plant core imports no clock, socket, thread or process module."""
     import ast
     from pathlib import Path
 

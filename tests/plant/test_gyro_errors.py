@@ -1,4 +1,4 @@
-"""Gyro error model (seed 003 eq. 3; DESIGN.md 5.3) against statistics and closed forms.
+"""Gyro error model (seed 003 eq. 3; docs/design.md 5.3) against statistics and closed forms.
 
 ``w_meas = w_B + b(t) + n`` with ``n ~ N(0, noise_std^2)`` per axis, ``b(t) = bias + walk(t)``,
 ``walk`` a random walk with increments ``N(0, bias_walk^2 dt)``, then quantised to
@@ -149,7 +149,7 @@ def test_quantisation_deterministic_rounds_to_nearest_step() -> None:
 
 
 def test_quantisation_after_noise_is_unbiased_with_sheppard_variance() -> None:
-    """Noise sigma = q before the quantiser (DESIGN.md 5.3 order: noise, then quantisation):
+    """Noise sigma = q before the quantiser (docs/design.md 5.3 order: noise, then quantisation):
     the output mean is the true rate, not its rounded value, and the variance is
     ``sigma^2 + q^2 / 12`` (Sheppard; exact to ~1e-8 relative for sigma >= q). Had the
     quantiser come first, the mean would sit 0.4 q away and the variance would be sigma^2."""

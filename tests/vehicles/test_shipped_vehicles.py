@@ -1,4 +1,4 @@
-"""The shipped vehicles have the layout DESIGN.md section 7 and their seeds ask for.
+"""The shipped vehicles have the layout docs/design.md section 7 and their seeds ask for.
 
 orel (seed 004): 30 thrusters in three belts and two manifolds of 14 and 16, each manifold alone
 able to turn the craft both ways about every axis; roll pairs that make a nearly pure couple.
@@ -94,7 +94,7 @@ def test_no_two_thrusters_share_a_direction(name: str) -> None:
 @pytest.mark.parametrize("name", ["orel", "iss_rs"])
 def test_one_tick_of_any_thruster_clears_the_detector_dead_zone(name: str) -> None:
     # A thruster stuck on for a whole tick must move the rate by more than the dead zone,
-    # otherwise the residual detector can never see it (DESIGN.md 6.4 step 2).
+    # otherwise the residual detector can never see it (docs/design.md 6.4 step 2).
     v, a = _arrays(name)
     one_tick = np.linalg.norm(a.mu_B_rad_s2, axis=1) * v.timing.tick_s
     assert one_tick.min() > 1.5 * v.flight.detector.dead_zone_rad_s, a.names[int(one_tick.argmin())]

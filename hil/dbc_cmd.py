@@ -1,4 +1,4 @@
-"""``hil dbc``: write, check and size the DBC generated from the catalog (DESIGN.md section 4)."""
+"""``hil dbc``: write, check and size the DBC generated from the catalog (docs/design.md 4)."""
 
 from __future__ import annotations
 

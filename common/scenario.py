@@ -1,0 +1,205 @@
+"""Scenario models: faults, initial state, target, truth deviations, expectations, safety
+(the design, sections 5.6 and 8).
+
+A scenario lives in ``configs/scenarios/<id>.yaml`` (read by the shell,
+``hil.config.load_scenario``, which also checks it against its vehicle and the bus catalog).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import Field, field_validator, model_validator
+
+from common.schema import (
+    MAX_DURATION_S,
+    RUN_NAME_PATTERN,
+    Fraction,
+    NonNegFloat,
+    PosFloat,
+    Vec3,
+    _FieldError,
+    _Model,
+)
+
+# --------------------------------------------------------------------------- scenario
+
+THRUSTER_FAULTS = ("stuck_on", "fail_to_fire", "degraded")
+GYRO_FAULTS = ("gyro_spike", "gyro_bias_step", "gyro_frozen", "gyro_noise")
+BUS_FAULTS = ("bus_drop", "bus_delay", "bus_corrupt", "node_silent")
+FaultKind = Literal[
+    "stuck_on", "fail_to_fire", "degraded",
+    "gyro_spike", "gyro_bias_step", "gyro_frozen", "gyro_noise",
+    "bus_drop", "bus_delay", "bus_corrupt", "node_silent",
+]
+
+
+class FaultSpec(_Model):
+    """One injected fault (docs/design.md 5.6).
+
+    ``fraction``: for ``stuck_on`` the residual thrust when commanded off (1.0 = full); for
+    ``degraded`` the thrust that remains. Gyro faults use ``axis`` (0..2, or None for all) and
+    ``magnitude_rad_s`` (spike, bias step, noise std). Bus faults use ``node`` and
+    ``probability`` / ``delay_ms``.
+    """
+
+    kind: FaultKind
+    t_s: NonNegFloat
+    clear_t_s: NonNegFloat | None = None
+    thruster: str | None = None
+    fraction: Fraction | None = None
+    axis: int | None = Field(default=None, ge=0, le=2)
+    magnitude_rad_s: float | None = None
+    node: Literal["flight", "plant"] | None = None
+    probability: Fraction = 1.0
+    delay_ms: NonNegFloat = 0.0
+
+    @model_validator(mode="after")
+    def _consistent(self) -> FaultSpec:
+        if self.clear_t_s is not None and self.clear_t_s <= self.t_s:
+            raise _FieldError("clear_t_s", f"a time after t_s={self.t_s}", self.clear_t_s)
+        if self.kind in THRUSTER_FAULTS and not self.thruster:
+            raise _FieldError("thruster", f"a thruster name for a {self.kind} fault", None)
+        if self.kind == "degraded" and self.fraction is None:
+            raise _FieldError("fraction", "a thrust fraction in [0, 1] for a degraded fault", None)
+        needs_magnitude = ("gyro_spike", "gyro_bias_step", "gyro_noise")
+        if self.kind in needs_magnitude and self.magnitude_rad_s is None:
+            raise _FieldError("magnitude_rad_s", f"a magnitude for a {self.kind} fault", None)
+        if self.kind in BUS_FAULTS and self.node is None:
+            raise _FieldError("node", "'flight' or 'plant' for a bus fault", None)
+        return self
+
+    @property
+    def effective_fraction(self) -> float:
+        """Residual (stuck_on) or remaining (degraded) thrust fraction; 0 for fail_to_fire."""
+        if self.kind == "fail_to_fire":
+            return 0.0
+        if self.fraction is None:
+            return 1.0
+        return float(self.fraction)
+
+
+class AttitudeCfg(_Model):
+    """An attitude as a rotation about ``axis`` by ``angle_deg`` (relative to the orbit frame)."""
+
+    axis: Vec3 = (1.0, 0.0, 0.0)
+    angle_deg: float = 0.0
+
+    @field_validator("axis")
+    @classmethod
+    def _nonzero(cls, v: Vec3) -> Vec3:
+        if math.sqrt(sum(c * c for c in v)) < 1e-12:
+            raise ValueError("a non-zero axis")
+        return v
+
+    def quaternion(self) -> np.ndarray:
+        """Scalar-first unit quaternion [q0, q1, q2, q3]."""
+        a = np.asarray(self.axis, dtype=float)
+        a = a / np.linalg.norm(a)
+        h = math.radians(self.angle_deg) / 2.0
+        return np.concatenate(([math.cos(h)], math.sin(h) * a))
+
+
+class InitialCfg(_Model):
+    attitude: AttitudeCfg = AttitudeCfg()
+    rate_B_deg_s: Vec3 = (0.0, 0.0, 0.0)
+
+
+class PlantOverridesCfg(_Model):
+    """Truth deviations from the nominal vehicle for one run (the flight keeps the nominal)."""
+
+    thrust_scale: PosFloat = 1.0
+    thrust_scale_per_thruster: dict[str, PosFloat] = {}
+    direction_error_deg: NonNegFloat = 0.0
+    command_latency_ms: NonNegFloat = 0.0
+    # Replaces the vehicle's constant disturbance torque for this run (None: the vehicle's).
+    disturbance_torque_B_Nm: tuple[float, float, float] | None = None
+    # Each step gets the exact thrust impulse (plant.core), so 10 ms loses nothing of the
+    # profile's ms features; RK4 error at w*h ~ 1e-3 is negligible.
+    step_s: Annotated[float, Field(ge=1e-4, le=0.1)] = 0.01
+
+
+class ExpectedDetection(_Model):
+    thruster: str | list[str]
+    type: Literal["stuck_on", "fail_to_fire", "degraded"]
+    within_s: PosFloat                    # the bound the run is judged against
+    seed_latency_s: PosFloat | None = None  # the seed's own figure, where it gives one
+
+
+class ExpectationsCfg(_Model):
+    detections: list[ExpectedDetection] = []
+    no_false_alarm: bool = True
+    max_attitude_error_deg: PosFloat | None = None
+    max_rate_error_deg_s: PosFloat | None = None
+    # Only judge the attitude/rate maxima after this time (e.g. after the initial slew).
+    settle_after_s: NonNegFloat = 0.0
+    # A demonstration run that must raise a false alarm (S003-flex-rigid, seed 003 fig. 2).
+    false_alarm_expected: bool = False
+    # Orbit correction: the delta-v (body axes, m/s) the plant must have received by the end,
+    # each component within delta_v_tol_m_s.
+    delta_v_B_m_s: tuple[float, float, float] | None = None
+    delta_v_tol_m_s: PosFloat = 0.3
+    # Rate "within the dead zone apart from brief excursions" (seed 004): after
+    # settle_after_s, no stretch longer than max_excursion_s with |rate| > rate_band_deg_s.
+    rate_band_deg_s: PosFloat | None = None
+    max_excursion_s: PosFloat = 10.0
+    # Recovery: from recover_after_s seconds after the first correct detection to the end,
+    # attitude error and rate stay within these bounds (the response holds attitude again).
+    recover_after_s: NonNegFloat | None = None
+    recovered_attitude_deg: PosFloat | None = None
+    recovered_rate_deg_s: PosFloat | None = None
+
+
+class SafetyCfg(_Model):
+    """When each side gives up on the other and goes to its safe state (the design, section 4).
+
+    ``thr_cmd_lost_ticks``: the plant closes every thruster valve and manifold when no
+    THR_CMD came for this many ticks (lockstep: deadline misses in a row; real time: ticks of
+    the plant's clock since the last command received). ``heartbeat_lost_s``: real time only,
+    the plant does the same when the flight's heartbeat (sent every
+    ``bus.catalog.HEARTBEAT_PERIOD_S``) has been silent this long; it must exceed that period
+    (checked by the loader, ``hil.config.load_scenario``: the period is the bus's).
+    ``gyro_lost_ticks``: the flight enters its safe mode (no firing, FDIR_STATUS safe flag,
+    heartbeat state SAFE) after this many ticks without a valid gyro sample (none arrived, or
+    every one was rejected by the receiver), and leaves it on the next valid one. Entering and
+    leaving are events in the records and on the terminal. ``python -m hil.nodes`` flags
+    (``--lost-after``, ``--heartbeat-lost-s``, ``--gyro-lost-after``) override these.
+    """
+
+    thr_cmd_lost_ticks: int = Field(default=3, ge=1, strict=True)  # strict: `true` is no count
+    heartbeat_lost_s: PosFloat = 1.5
+    gyro_lost_ticks: int = Field(default=3, ge=1, strict=True)
+
+
+class ScenarioCfg(_Model):
+    """A scenario file (``configs/scenarios/*.yaml``; the README shows one in full).
+
+    ``name``, ``description``, ``vehicle`` (a name in ``configs/vehicles`` or a path),
+    ``duration_s``, ``seed`` (every random source derives from it), ``initial`` (attitude and
+    rate relative to the orbit frame), ``target`` (attitude), ``plant`` (truth deviations,
+    ``PlantOverridesCfg``), ``flight`` (partial override of the vehicle's ``flight:``),
+    ``faults`` (``FaultSpec`` list), ``expect`` (optional verdict, ``ExpectationsCfg``) and
+    ``safety`` (optional, ``SafetyCfg``)::
+
+        safety: {thr_cmd_lost_ticks: 3, heartbeat_lost_s: 1.5, gyro_lost_ticks: 3}
+    """
+
+    # The name becomes the default output folder ``runs/<name>``: a safe set of characters,
+    # so a run never writes outside the folder chosen for it.
+    name: str = Field(pattern=RUN_NAME_PATTERN)
+    description: str = ""
+    vehicle: str
+    # A week of simulated time bounds what a run (and its records) can grow to.
+    duration_s: Annotated[float, Field(gt=0, le=MAX_DURATION_S)]
+    seed: int = Field(default=1, ge=0, lt=2**63)
+    initial: InitialCfg = InitialCfg()
+    target: AttitudeCfg = AttitudeCfg()
+    plant: PlantOverridesCfg = PlantOverridesCfg()
+    # Partial override of the vehicle's `flight:` section, merged key by key.
+    flight: dict[str, Any] = {}
+    faults: list[FaultSpec] = []
+    expect: ExpectationsCfg | None = None
+    safety: SafetyCfg = SafetyCfg()
+

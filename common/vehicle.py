@@ -1,0 +1,379 @@
+"""Vehicle models: every figure of a vehicle, validated once (the design, section 7).
+
+Every figure of a vehicle lives in ``configs/vehicles/<name>.yaml`` (read by the shell,
+``hil.config.load_vehicle``). Models forbid unknown keys and are frozen; nothing past the loader
+sees a raw dict.
+
+Frames and units: body axes B (x, y, z = roll, yaw, pitch channels as in seed 004), positions in
+metres in the structural frame with the same axes (the centre of mass ``com_m`` is given in it),
+forces in newtons, torques in N m, rates in rad/s unless the name says ``deg``.
+
+``VehicleArrays`` (at the end) turns a vehicle into the numpy arrays both cores use.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, field_validator, model_validator
+
+from common.schema import Forgetting, NonNegFloat, PosFloat, Vec3, _FieldError, _Model
+from common.units import G0_M_S2
+
+# --------------------------------------------------------------------------- vehicle: hardware
+
+
+class ThrusterCfg(_Model):
+    """One thruster. ``direction`` is the unit vector of the force it applies to the vehicle."""
+
+    name: str = Field(min_length=1)
+    position_m: Vec3
+    direction: Vec3
+    thrust_n: PosFloat
+    isp_s: PosFloat = 290.0
+    manifold: str
+
+    @field_validator("direction")
+    @classmethod
+    def _unit(cls, v: Vec3) -> Vec3:
+        n = math.sqrt(sum(c * c for c in v))
+        if not 0.999 <= n <= 1.001:
+            raise ValueError(f"a unit vector (norm 1 within 1e-3), norm is {n:.6g}")
+        return v
+
+
+class ThrustProfileCfg(_Model):
+    """Non-rectangular thrust profile, seed 004 eq. (4.1), and its equal-area lags.
+
+    Rise ``1 - exp(-k1 (t - T_R)^n1)`` after the electrical delay ``T_R``; decay
+    ``exp(-k2 (t - t_off - T_R)^n2)``. ``k1`` and ``k2`` are calibrated by the plant so that the
+    equal-area lags equal ``on_lag_ms`` and ``off_lag_ms`` (seed 004 section 4).
+    """
+
+    on_lag_ms: PosFloat = 30.0
+    off_lag_ms: PosFloat = 27.0
+    electrical_delay_ms: NonNegFloat = 10.0
+    rise_exponent: PosFloat = 2.0
+    decay_exponent: PosFloat = 1.0
+
+    @model_validator(mode="after")
+    def _lags_after_the_delay(self) -> ThrustProfileCfg:
+        # Equal-area lags include the electrical delay: the profile cannot be calibrated below it.
+        for name in ("on_lag_ms", "off_lag_ms"):
+            if getattr(self, name) <= self.electrical_delay_ms:
+                raise _FieldError(name, f"> electrical_delay_ms ({self.electrical_delay_ms:g})",
+                                  getattr(self, name))
+        return self
+
+
+class TimingCfg(_Model):
+    """Flight tick and PWM quantisation (seed 004; docs/design.md section 3)."""
+
+    tick_s: PosFloat = 0.2
+    pwm_quantum_ms: PosFloat = 10.0
+    min_on_ms: NonNegFloat = 30.0
+    min_off_ms: NonNegFloat = 30.0
+
+
+class OrbitCfg(_Model):
+    """Circular orbit for the gravity-gradient torque ``3 w0^2 (j x J j)`` (docs/design.md 5.1)."""
+
+    rate_rad_s: NonNegFloat = 0.001162
+    gravity_gradient: bool = True
+
+
+class CmgCfg(_Model):
+    """Optional CMG angular momentum in body axes, constant plus a constant rate of change."""
+
+    h_B_Nms: Vec3 = (0.0, 0.0, 0.0)
+    h_dot_B_Nm: Vec3 = (0.0, 0.0, 0.0)
+
+
+class DisturbanceCfg(_Model):
+    """External disturbance torque: constant part plus seeded white noise (per axis, 1-sigma)."""
+
+    constant_torque_B_Nm: Vec3 = (0.0, 0.0, 0.0)
+    random_torque_std_Nm: NonNegFloat = 0.0
+
+
+class ModeShapeCfg(_Model):
+    """Linear ``f`` and angular ``phi`` mode shape at one point (seed 003 eq. 2)."""
+
+    f: Vec3 = (0.0, 0.0, 0.0)
+    phi: Vec3 = (0.0, 0.0, 0.0)
+
+
+class FlexModeCfg(_Model):
+    """One elastic mode (seed 003 eq. 2): ``q'' + 2 delta lambda q' + (2 pi lambda)^2 q = ...``.
+
+    ``freq_hz`` is lambda_i, ``log_decrement`` is delta. ``gyro_phi`` is the angular mode shape at
+    the gyro (its contribution to the measured rate is ``gyro_phi * q'``, seed 003 eq. 3).
+    ``thrusters`` maps thruster names to their mode shapes; ``default`` applies to the others.
+    """
+
+    name: str
+    freq_hz: PosFloat
+    log_decrement: PosFloat
+    gyro_phi: Vec3
+    default: ModeShapeCfg = ModeShapeCfg()
+    thrusters: dict[str, ModeShapeCfg] = {}
+
+    @model_validator(mode="after")
+    def _oscillating(self) -> FlexModeCfg:
+        # delta >= 2 pi: the damping sigma = delta lambda reaches 2 pi lambda, no ringing at all.
+        if self.log_decrement >= 2.0 * math.pi:
+            raise _FieldError("log_decrement", "< 2 pi (an oscillating mode)", self.log_decrement)
+        return self
+
+
+class GyroCfg(_Model):
+    """Angular-rate sensor (seed 003 eq. 3; seed 002 for the integrating variant)."""
+
+    kind: Literal["rate", "integrating"] = "rate"
+    noise_std_rad_s: NonNegFloat = 0.0
+    bias_rad_s: Vec3 = (0.0, 0.0, 0.0)
+    bias_walk_rad_s_sqrt_s: NonNegFloat = 0.0
+    quantum_rad_s: NonNegFloat = 0.0
+    rate_hz: PosFloat = 5.0
+    latency_ms: NonNegFloat = 0.0
+
+
+# --------------------------------------------------------------------------- vehicle: flight
+
+
+class ControllerCfg(_Model):
+    """Phase-plane controller (seed 004 section 2) or the seed 002 law ``s = phi + k w``."""
+
+    law: Literal["phase_plane", "s_law"] = "phase_plane"
+    rate_deadband_deg_s: PosFloat = 0.12
+    angle_deadband_deg: PosFloat = 0.5
+    hysteresis_deg_s: NonNegFloat = 0.02
+    large_angle_deg: PosFloat = 15.0
+    curve_angle_deg: PosFloat = 6.1
+    max_rate_deg_s: PosFloat = 3.5
+    # Seed 002 law: s = phi + k w with a dead zone on s.
+    s_gain_s: PosFloat = 10.0
+    s_deadband_deg: PosFloat = 0.5
+
+
+class AllocatorCfg(_Model):
+    """Minimum-fuel LP allocation (seed 004 section 3)."""
+
+    # Dense bounded dual simplex with warm start: fastest here (bench/bench_allocator.py).
+    solver: Literal["highs", "simplex", "linprog"] = "simplex"
+    carry_remainder: bool = True
+    # Roll pairs used in orbit-correction mode (seed 004: (15,19), (17,21), (16,20), (18,22)).
+    roll_pairs: list[tuple[str, str]] = []
+
+
+class OnboardModelCfg(_Model):
+    """One-tick rate prediction (seed 003 eq. 9; seed 000 eq. 2)."""
+
+    predict_from: Literal["measured", "model"] = "measured"
+    command_latency_ms: NonNegFloat = 0.0
+
+
+class ObserverCfg(_Model):
+    """Self-tuning observer (seed 003 eqs. 7-8); ``rigid`` disables the flex estimate."""
+
+    kind: Literal["adaptive", "rigid"] = "adaptive"
+    gains: tuple[float, float, float, float, float, float, float, float] = (
+        0.5, 0.5, 0.05, 0.05, 0.01, 0.01, 0.1, 0.1,
+    )
+    initial_freq_hz: PosFloat = 0.2
+    initial_damping: NonNegFloat = 0.01
+    # |mu^| bound: the flex share at the gyro of a pulse's rate change (seed 003 eq. 8)
+    mu_bound: PosFloat = 5.0
+
+
+class DetectorCfg(_Model):
+    """Integral residuals with forgetting (seed 000; seed 003 threshold 0.5)."""
+
+    dead_zone_rad_s: NonNegFloat = 1e-4
+    # The dead zone grows with what was commanded: |dw| below dead_zone_rad_s plus this
+    # fraction of the sum of the commanded thrusters' rate changes (sum_j |mu_j| tau_E,j) is
+    # treated as zero, so thrust errors of the size the vehicle admits (docs/design.md 10: +/-15 %)
+    # are not read as a failure of a whole thruster.
+    relative_dead_zone: float = Field(default=0.0, ge=0.0, lt=1.0)
+    forgetting_on: Forgetting = 0.9
+    forgetting_off: Forgetting = 0.9
+    threshold_on: PosFloat = 3.0
+    threshold_off: PosFloat = 3.0
+    # Two thrusters whose unit acceleration vectors differ by less than this angle are reported
+    # as a group (seed 003's stated limit of the method).
+    same_direction_deg: NonNegFloat = 2.0
+
+
+class KalmanCfg(_Model):
+    """Per-axis Kalman filter with a disturbance state (seed 002) and its leak test."""
+
+    enabled: bool = False
+    process_noise_accel: NonNegFloat = 1e-7
+    measurement_noise_rad: PosFloat = 1e-5
+    leak_threshold_rad_s2: PosFloat = 1e-4
+    window_ticks: int = Field(default=5, ge=1)
+
+
+class FdirCfg(_Model):
+    """Response to a detection (docs/design.md 6.4 step 7), per vehicle."""
+
+    on_stuck_on: Literal["close_manifold", "drop_thruster", "none"] = "close_manifold"
+    on_fail_to_fire: Literal["close_manifold", "drop_thruster", "none"] = "drop_thruster"
+    on_degraded: Literal["close_manifold", "drop_thruster", "none"] = "drop_thruster"
+
+
+class OrbitCorrectionCfg(_Model):
+    """An orbit-correction burn (seed 004 section 3, eqs. 3.3-3.4), set per scenario.
+
+    From ``start_s`` the flight burns ``burn`` (4, 6 or 8 thrusters of the aft belt for +X,
+    of the front belt for -X) continuously, holds attitude by off-times, gives the lateral
+    components from the middle belt, and stops when its own prediction of the delta-v given
+    (no accelerometer: the sum of the allocator's predictions) is within ``tolerance_m_s`` of
+    ``delta_v_B_m_s`` (body axes; the craft holds the orbital attitude, so body ~ orbital).
+    ``scheme``: seed 004's name of the case (``cartesian``: X, Y, Z components;
+    ``polar``: the whole delta-v along X).
+    """
+
+    start_s: NonNegFloat = 0.0
+    delta_v_B_m_s: tuple[float, float, float]
+    burn: list[str] = Field(min_length=1)
+    scheme: Literal["cartesian", "polar"] = "cartesian"
+    tolerance_m_s: PosFloat = 0.02
+
+
+class FlightCfg(_Model):
+    controller: ControllerCfg = ControllerCfg()
+    allocator: AllocatorCfg = AllocatorCfg()
+    onboard_model: OnboardModelCfg = OnboardModelCfg()
+    observer: ObserverCfg = ObserverCfg()
+    detector: DetectorCfg = DetectorCfg()
+    kalman: KalmanCfg = KalmanCfg()
+    fdir: FdirCfg = FdirCfg()
+    orbit_correction: OrbitCorrectionCfg | None = None
+
+
+class VehicleCfg(_Model):
+    name: str
+    description: str = ""
+    mass_kg: PosFloat
+    inertia_B_kg_m2: tuple[Vec3, Vec3, Vec3]
+    com_m: Vec3 = (0.0, 0.0, 0.0)
+    timing: TimingCfg = TimingCfg()
+    thrust_profile: ThrustProfileCfg = ThrustProfileCfg()
+    orbit: OrbitCfg = OrbitCfg()
+    cmg: CmgCfg | None = None
+    disturbance: DisturbanceCfg = DisturbanceCfg()
+    gyro: GyroCfg = GyroCfg()
+    flex_modes: list[FlexModeCfg] = []
+    manifolds: list[str] = Field(min_length=1)
+    thrusters: list[ThrusterCfg] = Field(min_length=1)
+    flight: FlightCfg = FlightCfg()
+
+    @field_validator("inertia_B_kg_m2")
+    @classmethod
+    def _inertia(cls, v: tuple[Vec3, Vec3, Vec3]) -> tuple[Vec3, Vec3, Vec3]:
+        j = np.array(v, dtype=float)
+        if not np.allclose(j, j.T, rtol=0, atol=1e-9 * max(1.0, float(np.abs(j).max()))):
+            raise ValueError("a symmetric 3x3 matrix")
+        if np.linalg.eigvalsh(j).min() <= 0:
+            raise ValueError("a positive definite 3x3 matrix")
+        return v
+
+    @model_validator(mode="after")
+    def _cross(self) -> VehicleCfg:
+        names = [t.name for t in self.thrusters]
+        seen: set[str] = set()
+        for i, n in enumerate(names):
+            if n in seen:
+                raise _FieldError(f"thrusters[{i}].name", "a unique thruster name", n)
+            seen.add(n)
+        if len(set(self.manifolds)) != len(self.manifolds):
+            raise _FieldError("manifolds", "unique manifold names", self.manifolds)
+        for i, t in enumerate(self.thrusters):
+            if t.manifold not in self.manifolds:
+                raise _FieldError(
+                    f"thrusters[{i}].manifold", f"one of {self.manifolds}", t.manifold
+                )
+        for k, m in enumerate(self.flex_modes):
+            for tn in m.thrusters:
+                if tn not in seen:
+                    raise _FieldError(f"flex_modes[{k}].thrusters", "a thruster name", tn)
+        for k, (a, b) in enumerate(self.flight.allocator.roll_pairs):
+            for n in (a, b):
+                if n not in seen:
+                    raise _FieldError(f"flight.allocator.roll_pairs[{k}]", "a thruster name", n)
+        oc = self.flight.orbit_correction
+        for k, n in enumerate(oc.burn if oc else ()):
+            if n not in seen:
+                raise _FieldError(f"flight.orbit_correction.burn[{k}]", "a thruster name", n)
+        return self
+
+    def thruster_index(self, name: str) -> int:
+        for i, t in enumerate(self.thrusters):
+            if t.name == name:
+                return i
+        raise KeyError(name)
+
+
+# --------------------------------------------------------------------------- derived arrays
+
+
+@dataclass(frozen=True)
+class VehicleArrays:
+    """Numpy views of a vehicle, shared by the plant and flight cores (nominal values).
+
+    Shapes: N thrusters. ``r_B_m`` (N, 3) lever arms from the centre of mass; ``d_B`` (N, 3) unit
+    force directions; ``thrust_n`` (N,); ``torque_per_n_B`` (N, 3) = r x d; ``mu_B_rad_s2`` (N, 3)
+    = J^-1 (r x F), the angular acceleration of each thruster (seed 004 section 3);
+    ``accel_B_m_s2`` (N, 3) = F / m; ``mdot_kg_s`` (N,) = F / (Isp g0); ``manifold_of`` (N,)
+    manifold index of each thruster.
+    """
+
+    names: tuple[str, ...]
+    manifolds: tuple[str, ...]
+    J_B_kg_m2: np.ndarray
+    J_inv_B: np.ndarray
+    mass_kg: float
+    r_B_m: np.ndarray
+    d_B: np.ndarray
+    thrust_n: np.ndarray
+    torque_per_n_B: np.ndarray
+    mu_B_rad_s2: np.ndarray
+    accel_B_m_s2: np.ndarray
+    mdot_kg_s: np.ndarray
+    manifold_of: np.ndarray
+
+    @classmethod
+    def from_vehicle(cls, v: VehicleCfg) -> VehicleArrays:
+        J = np.array(v.inertia_B_kg_m2, dtype=float)
+        J_inv = np.linalg.inv(J)
+        com = np.array(v.com_m, dtype=float)
+        r = np.array([t.position_m for t in v.thrusters], dtype=float) - com
+        d = np.array([t.direction for t in v.thrusters], dtype=float)
+        d = d / np.linalg.norm(d, axis=1, keepdims=True)
+        F = np.array([t.thrust_n for t in v.thrusters], dtype=float)
+        tq = np.cross(r, d)
+        mu = (J_inv @ (tq * F[:, None]).T).T
+        isp = np.array([t.isp_s for t in v.thrusters], dtype=float)
+        man = np.array([v.manifolds.index(t.manifold) for t in v.thrusters], dtype=int)
+        arrays = (J, J_inv, r, d, F, tq, mu, d * F[:, None] / v.mass_kg, F / (isp * G0_M_S2), man)
+        for a in arrays:
+            a.setflags(write=False)
+        return cls(
+            names=tuple(t.name for t in v.thrusters),
+            manifolds=tuple(v.manifolds),
+            J_B_kg_m2=J,
+            J_inv_B=J_inv,
+            mass_kg=float(v.mass_kg),
+            r_B_m=r,
+            d_B=d,
+            thrust_n=F,
+            torque_per_n_B=tq,
+            mu_B_rad_s2=mu,
+            accel_B_m_s2=arrays[7],
+            mdot_kg_s=arrays[8],
+            manifold_of=man,
+        )

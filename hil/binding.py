@@ -1,0 +1,129 @@
+"""The one binding between the cores' types and the bus messages (house style, habit 14).
+
+Every path that connects the flight and the plant uses these functions: the process shells
+(``hil.plant_shell``, ``hil.flight_shell``), the fault panel (``hil.panel``) and the in-process
+lockstep (``hil.sim``, which also passes each message through ``over_the_wire``), so the
+in-process run equals the lockstep run over the bus by construction, and a second bus (LCM) can
+reuse them.
+
+* gyro sample (``plant.gyro.GyroSample``) -> GYRO: sequence modulo 65536, the rate clipped to
+  the GYRO signal's range (``bus.catalog.GYRO_RATE_LIMIT_RAD_S``), status (0 read as 1, valid);
+* flight output (``flight.software.TickOutput``) -> THR_CMD (on-times in
+  ``bus.catalog.ON_QUANTUM_MS`` quanta, manifold bit mask, the gyro sample it came from) and
+  FDIR_STATUS (the newest detection, the closed manifolds, the safe flag);
+* THR_CMD -> the plant's command (on-times in ms, manifold open flags);
+* fault specs (``common.scenario.FaultSpec``) <-> FAULT_CMD kinds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from bus.catalog import (
+    GYRO_RATE_LIMIT_RAD_S,
+    ON_QUANTUM_MS,
+    DetectedFault,
+    FaultAction,
+    FaultKind,
+)
+from bus.codec import FaultCmd, FdirStatus, Gyro, Message, ThrCmd, decode, encode
+from common.scenario import FaultSpec
+
+# FAULT_CMD kind <-> the scenario's fault kind names.
+FAULT_KIND_FROM_BUS = {
+    FaultKind.STUCK_ON: "stuck_on", FaultKind.FAIL_TO_FIRE: "fail_to_fire",
+    FaultKind.DEGRADED: "degraded", FaultKind.GYRO_SPIKE: "gyro_spike",
+    FaultKind.GYRO_BIAS_STEP: "gyro_bias_step", FaultKind.GYRO_FROZEN: "gyro_frozen",
+    FaultKind.GYRO_NOISE: "gyro_noise", FaultKind.BUS_DROP: "bus_drop",
+    FaultKind.BUS_DELAY: "bus_delay", FaultKind.BUS_CORRUPT: "bus_corrupt",
+    FaultKind.NODE_SILENT: "node_silent",
+}
+FAULT_KIND_TO_BUS = {name: kind for kind, name in FAULT_KIND_FROM_BUS.items()}
+# A panel-injected gyro fault's magnitude (FAULT_CMD carries none), rad/s.
+PANEL_GYRO_MAGNITUDE_RAD_S = 1e-3
+
+_DETECTED = {"stuck_on": DetectedFault.STUCK_ON, "fail_to_fire": DetectedFault.FAIL_TO_FIRE}
+
+
+def over_the_wire(msg: Message) -> Message:
+    """``msg`` as the receiver gets it: encoded to frames and decoded (the bus's quantisation
+    and ranges), for the in-process path."""
+    return decode(encode(msg))
+
+
+# ----------------------------------------------------------------------------- plant -> flight
+
+
+def gyro_message(sample) -> Gyro:
+    """GYRO of one ``plant.gyro.GyroSample`` (``rate_B_rad_s`` (3,), rad/s, body axes)."""
+    rate = np.clip(np.asarray(sample.rate_B_rad_s, dtype=float),
+                   -GYRO_RATE_LIMIT_RAD_S, GYRO_RATE_LIMIT_RAD_S)
+    return Gyro(sample.seq & 0xFFFF, tuple(float(x) for x in rate), int(sample.status) or 1)
+
+
+# ----------------------------------------------------------------------------- flight -> plant
+
+
+def command_quanta(on_ms: Sequence[int], safe: bool = False) -> tuple[int, ...]:
+    """THR_CMD on-durations (quanta) of the allocator's on-times ``on_ms`` (N,) in ms; all zero
+    in the flight's safe mode."""
+    quanta = tuple(int(x) // ON_QUANTUM_MS for x in on_ms)
+    return (0,) * len(quanta) if safe else quanta
+
+
+def manifold_mask(manifold_open: Sequence[bool]) -> int:
+    """THR_CMD ``manifold_enable``: bit m set = manifold m open."""
+    return sum(1 << m for m, o in enumerate(manifold_open) if o)
+
+
+def thr_cmd(tick: int, out, gyro_seq: int, safe: bool = False) -> ThrCmd:
+    """THR_CMD of flight tick ``tick`` from its ``TickOutput`` and the GYRO sample it used."""
+    return ThrCmd(tick, command_quanta(out.on_ms, safe), manifold_mask(out.manifold_open),
+                  gyro_seq)
+
+
+def fdir_status(last_detection, out, safe: bool) -> FdirStatus:
+    """FDIR_STATUS: the newest detection so far (``flight.detector.Detection`` or None), the
+    manifolds the output closes, and the safe flag (the shell's or the flight's own)."""
+    last = last_detection
+    g = last.group if last else ()
+    closed = sum(1 << m for m, o in enumerate(out.manifold_open) if not o)
+    return FdirStatus(
+        last.tick if last else 0, _DETECTED.get(last.kind, DetectedFault.NONE) if last else 0,
+        g[0] if g else None, g[1] if len(g) > 1 else None,
+        closed, safe or out.safe_mode, 0)
+
+
+def plant_command(cmd: ThrCmd, n_manifolds: int) -> tuple[np.ndarray, np.ndarray]:
+    """The plant's command of a THR_CMD: on-times (N,) in ms and manifold open flags (M,)."""
+    on_ms = np.asarray(cmd.on_quanta, dtype=float) * ON_QUANTUM_MS
+    man = np.array([(cmd.manifold_enable >> m) & 1 for m in range(n_manifolds)], dtype=bool)
+    return on_ms, man
+
+
+# ----------------------------------------------------------------------------- faults
+
+
+def fault_cmd_inject(request_id: int, kind: str, thruster_index: int | None, fraction: float,
+                     start_s: float, clear_s: float | None) -> FaultCmd:
+    """FAULT_CMD injecting fault ``kind`` (a scenario fault kind name)."""
+    return FaultCmd(request_id, FaultAction.INJECT, FAULT_KIND_TO_BUS[kind], thruster_index,
+                    fraction, start_s, clear_s)
+
+
+def fault_spec(cmd: FaultCmd, thruster_names: Sequence[str], now_s: float) -> FaultSpec:
+    """The ``FaultSpec`` of an injecting FAULT_CMD (its kind known, its thruster index valid),
+    starting no earlier than ``now_s`` (plant time). Raises ``ValueError`` (pydantic) when the
+    fields do not make a valid fault."""
+    kind = FAULT_KIND_FROM_BUS[cmd.kind]
+    return FaultSpec(
+        kind=kind, t_s=max(cmd.start_time_s, now_s),
+        clear_t_s=cmd.clear_time_s,
+        thruster=None if cmd.thruster is None else thruster_names[cmd.thruster],
+        fraction=cmd.fraction if kind in ("stuck_on", "degraded") else None,
+        magnitude_rad_s=PANEL_GYRO_MAGNITUDE_RAD_S
+        if kind.startswith("gyro") and kind != "gyro_frozen" else None,
+        node="flight" if kind.startswith("bus") or kind == "node_silent" else None,
+    )

@@ -1,0 +1,316 @@
+"""The flight process: ``flight.software.FlightSoftware`` behind a CAN port
+(``python -m hil.nodes flight``).
+
+Lockstep: the flight ticks on each SYNC (``bus.protocol.FlightLockstep``). Real time: the strict
+tick scheduler (``hil.scheduler``) on CLOCK_MONOTONIC, its grid placed on the observed gyro
+arrivals; each tick waits (bounded) for its own sample before it computes
+(``FlightShell.run_realtime``). Safe mode on gyro loss: ``hil.safe_states.GyroLossWatch``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bus.catalog import ON_QUANTUM_MS, NodeState
+from bus.catalog import Node as NodeId
+from bus.codec import FlightTiming, Gyro, ThrCmd
+from bus.protocol import FlightLockstep, HeartbeatSender, TickRequest
+from bus.transport import Port
+from common.units import DEG
+from hil.binding import command_quanta, fdir_status, manifold_mask
+from hil.config import Scenario
+from hil.node_settings import NodeSettings
+from hil.node_shell import Stop, first_record, named_values, say, xyz_values
+from hil.process_policy import idle_gc
+from hil.recorder import JsonlWriter
+from hil.records import FlightRecord, detection_record
+from hil.safe_states import GyroLossWatch, safety_settings
+from hil.scheduler import (
+    RateGroup,
+    TickRecord,
+    TickScheduler,
+    align_to_samples,
+    monotonic_sleep_until,
+    wait_for,
+)
+
+
+class FlightShell:
+    """Flight process: ``flight.software.FlightSoftware`` behind a CAN port."""
+
+    def __init__(self, sc: Scenario, port: Port, out: Path, settings: NodeSettings) -> None:
+        from flight.software import FlightSoftware
+
+        self.sc, self.port, self.settings = sc, port, settings
+        self.v = sc.vehicle
+        self.h = self.v.timing.tick_s
+        self.fs = FlightSoftware(self.v, target=sc.cfg.target,
+                                 initial_attitude=sc.cfg.initial.attitude)
+        self.names = self.fs.arrays.names
+        self.rec = JsonlWriter(out / "flight.jsonl")
+        self.events: list[str] = []
+        self.overruns = 0
+        self.detections = 0
+        self.safe = False
+        self.gyro: Gyro | None = None
+        self.gyro_fresh = False
+        self.safety = safety_settings(sc, settings)
+        self.gyro_watch = GyroLossWatch(self.safety.gyro_lost_ticks)
+        self.last_out = None
+        self.late_gyro = 0
+        self.lock: FlightLockstep | None = None  # lockstep only (run_lockstep)
+        self.last_det = None  # the newest detection, repeated in every FDIR_STATUS
+        self.thr_cmd_on_ms = 0  # what the tick's THR_CMD carried, for the record
+        self.first = first_record(sc, settings, {"gyro_lost_ticks": self.safety.gyro_lost_ticks})
+        self.events.extend(self.first.pop("events"))
+        if settings.mode == "realtime":
+            self._warm_up(sc)
+
+    @staticmethod
+    def _warm_up(sc: Scenario) -> None:
+        """A few firing ticks of a throwaway flight software before the first real one.
+
+        The first solve imports and sets up the LP solver (highspy): 200 ms once, measured
+        under user-mode Linux, which made tick 0 of every real-time run an overrun. The
+        instance that flies is untouched (lockstep runs skip this and stay bit for bit).
+        """
+        from flight.software import FlightSoftware
+
+        fs = FlightSoftware(sc.vehicle, target=sc.cfg.target,
+                            initial_attitude=sc.cfg.initial.attitude)
+        for n in range(3):
+            fs.step(n, np.array([0.02, -0.02, 0.01]))
+
+    def tick(self, n: int, jitter_s: float | None = None, rt: dict | None = None) -> None:
+        """One flight tick: stages in order, each timed; THR_CMD, FDIR_STATUS, telemetry out.
+
+        Stage times come from one clock read per stage boundary (a clock read is a system
+        call under user-mode Linux). ``rt``: real-time figures of this tick for the record.
+        """
+        fs, clk = self.fs, time.perf_counter_ns
+        t_start = clk()
+        change = self.gyro_watch.tick(self.gyro is not None and self.gyro_fresh)
+        if change == "lost":
+            self.safe = True
+            fs.peer_lost()
+            self.events.append(f"safe mode: no valid gyro for {self.gyro_watch.ticks_without} "
+                               f"ticks: no firing")
+            say("flight", self.events[-1])
+        elif change == "back":
+            self.safe = False
+            fs.peer_back()
+            self.events.append("gyro back: leaving safe mode")
+            say("flight", self.events[-1])
+        omega = np.zeros(3) if self.gyro is None else np.asarray(self.gyro.omega_B_rad_s)
+        self.gyro_fresh = False
+        stage_ns = {}
+        t0 = clk()
+        fs.begin(n, omega)
+        t1 = clk()
+        stage_ns["gyro_in"] = t1 - t0
+        for name in fs.STAGES:
+            getattr(fs, "stage_" + name)()
+            t0, t1 = t1, clk()
+            stage_ns[name] = t1 - t0
+        out = fs.finish()
+        t0 = t1
+        quanta = command_quanta(out.on_ms, self.safe)
+        mask = manifold_mask(out.manifold_open)
+        seq = self.gyro.sample_seq if self.gyro else 0
+        cmd = self._reply(n, quanta, mask, seq)
+        if cmd is not None:
+            self.port.send(cmd)
+        det = out.detection
+        detection = None
+        if det is not None:
+            self.detections += 1
+            detection = detection_record(det, n, self.h, self.names)
+            thr = detection["thruster"]
+            self.events.append(f"detection: {det.kind} of "
+                               f"{thr if isinstance(thr, str) else 'one of ' + str(thr)} "
+                               f"at {n * self.h:.1f} s ({det.source})")
+            say("flight", self.events[-1])
+        t1 = clk()
+        stage_ns["thr_cmd_out"] = t1 - t0
+        t0 = t1
+        if det is not None:
+            self.last_det = det
+        fdir = fdir_status(self.last_det, out, self.safe)
+        # FLIGHT_TIMING cannot carry the time of its own sending; the record's compute_s does.
+        so_far_s = (clk() - t_start) / 1e9
+        self.port.send(fdir, FlightTiming(n, min(so_far_s, 0.065), self.overruns % 256))
+        t1 = clk()
+        stage_ns["fdir_tm_out"] = t1 - t0
+        compute_s = (t1 - t_start) / 1e9
+        self.thr_cmd_on_ms = ON_QUANTUM_MS * sum(quanta) if cmd is not None else 0
+        self.record(n, out, detection, stage_ns, compute_s, jitter_s, rt)
+
+    def _reply(self, n, quanta, mask, seq):
+        if self.lock is not None:
+            return self.lock.reply(n, quanta, mask, seq)
+        return ThrCmd(n, quanta, mask, seq)  # real time: no lockstep state to keep
+
+    def record(self, n, out, detection, stage_ns, compute_s, jitter_s, rt=None) -> None:
+        thr_off = out.threshold_off
+        rec: FlightRecord = {
+            "tick": n, "t_s": round(n * self.h, 6),
+            "series": {
+                "flight/omega_meas_deg_s": xyz_values(out.omega_meas, DEG),
+                "flight/omega_est_deg_s": xyz_values(out.omega_est, DEG),
+                "flight/omega_pred_deg_s": xyz_values(out.omega_pred, DEG),
+                "flight/residual_deg_s": xyz_values(out.residual, DEG),
+                "flight/attitude_error_deg": xyz_values(out.att_err_rad, DEG),
+                "flight/rho_on": named_values(self.names, out.rho_on),
+                "flight/rho_off": named_values(self.names, out.rho_off),
+                "flight/thresholds": {"off": thr_off, "on": -out.threshold_on},
+                "flight/on_ms": named_values(self.names, out.on_ms),
+                "flight/compute_ms": {k: v / 1e6 for k, v in stage_ns.items()},
+            },
+            "events": self.events,
+            "detection": detection,
+            "compute_s": compute_s,
+            "stage_s": {k: v / 1e9 for k, v in stage_ns.items()},
+            "jitter_s": jitter_s,
+            "overruns": self.overruns,
+            "safe": self.safe,
+            # What THR_CMD carried (flight/on_ms is the allocator's wish; safe mode zeroes it).
+            "thr_cmd_on_ms": self.thr_cmd_on_ms,
+            "bus": self.port.counts(),
+        }
+        if rt is not None:
+            # Real time only: lockstep records stay identical run to run (bit for bit).
+            rec.update(rt)
+            rec["series"]["timing/flight_ms"] = {
+                "release_jitter": (jitter_s or 0.0) * 1e3, "gyro_wait": rt["gyro_wait_s"] * 1e3,
+                "compute": compute_s * 1e3}
+        if self.first:
+            rec.update(self.first)
+            self.first = {}
+        self.rec.write(rec)
+        self.events = []
+        idle_gc(rec["tick"])
+
+    def absorb(self, msgs) -> list:
+        """Take messages from the bus; returns lockstep events (TickRequest...)."""
+        evs = []
+        for msg, rx in msgs:
+            if isinstance(msg, Gyro):
+                self.gyro, self.gyro_fresh = msg, True
+            if self.lock is not None:
+                evs.extend(self.lock.on_message(msg, rx))
+        return evs
+
+    def run_lockstep(self, stop: Stop) -> int:
+        self.lock = FlightLockstep()
+        while not stop():
+            for ev in self.absorb(self.port.poll(0.05)):
+                if isinstance(ev, TickRequest):
+                    self.tick(ev.tick)
+        self.rec.close()
+        return 0
+
+    def _sleep_until(self, target_ns: int) -> None:
+        """Sleep to an absolute time reading the bus meanwhile (frames never wait to go stale),
+        then finish with ``monotonic_sleep_until``'s fine sleep."""
+        while True:
+            remaining = target_ns - time.monotonic_ns()
+            if remaining <= 2_000_000:
+                break
+            self.absorb(self.port.poll((remaining - 1_000_000) / 1e9))
+        monotonic_sleep_until(target_ns)
+
+    def _observe_gyro(self, stop: Stop) -> list[tuple[int, int]] | None:
+        """(seq, arrival ns on CLOCK_MONOTONIC) of the first ``--align-samples`` gyro samples
+        (kernel receive stamps); None when stopped first."""
+        seen: list[tuple[int, int]] = []
+        while len(seen) < max(1, self.settings.align_samples):
+            if stop():
+                return None
+            for msg, rx in self.port.poll(0.1):
+                if isinstance(msg, Gyro):
+                    self.gyro, self.gyro_fresh = msg, True
+                    seen.append((msg.sample_seq, int(self.port.to_monotonic_s(rx) * 1e9)))
+        return seen
+
+    def run_realtime(self, stop: Stop) -> int:
+        """Strict absolute tick grid aligned to the gyro; each tick waits for its sample.
+
+        The plant publishes a sample every ``1 / gyro.rate_hz``; the flight watches when the
+        first samples arrive and puts its release grid on the earliest arrival plus
+        ``--release-offset-ms`` (``hil.scheduler.align_to_samples``; default -2 ms: the
+        flight is already waiting when the sample comes, and it wakes after the plant's
+        pre-wake work, not in the middle of it). At each release the tick waits on
+        the socket for the sample that belongs to it (its sequence number follows from the
+        grid), at most ``--gyro-wait-ms``, then computes and sends THR_CMD at once. So the
+        command is computed from its own tick's sample however late (within the bound) the
+        sample comes, and sensor-to-actuator latency is sample delay + compute + bus.
+        Before, the tick was released 1 ms after the first sample's arrival and read
+        whatever had come: a sample a little later than that was used one tick late (or
+        went stale in the socket and was dropped), which put 200 ms and more into the p99.
+        A sample later than the bound is counted (``late_gyro``, an event) and the tick uses
+        the newest sample it has. Releases stay on the absolute grid and the scheduler
+        counts overruns as before; release jitter is the wake-up minus the scheduled
+        release, the wait for the sample is reported apart (``gyro_wait_s``). Between ticks
+        the flight sleeps on the socket, so frames are read when they come.
+        """
+        a = self.settings
+        seen = self._observe_gyro(stop)
+        if seen is None:
+            self.rec.close()
+            return 0
+        tick_ns = int(round(self.h * 1e9))
+        grid = align_to_samples(seen, int(round(1e9 / self.v.gyro.rate_hz)), tick_ns,
+                                int(round(a.release_offset_ms * 1e6)))
+        if not grid.per_tick:
+            self.events.append(f"gyro at {self.v.gyro.rate_hz:g} Hz is not a whole number of "
+                               f"samples per tick: ticks use the newest sample, no wait")
+        wait_ns = int(round(a.gyro_wait_ms * 1e6))
+        hb = HeartbeatSender(NodeId.FLIGHT, 0.0)
+        cpu0 = time.process_time()
+
+        def newest() -> int | None:
+            return None if self.gyro is None else self.gyro.sample_seq
+
+        def base(n: int, release_ns: int) -> None:
+            start = time.monotonic_ns()
+            self.absorb(self.port.poll(0.0))
+            got = grid.per_tick == 0 or wait_for(
+                lambda: grid.reached(newest(), n),
+                lambda timeout_s: self.absorb(self.port.poll(timeout_s)),
+                time.monotonic_ns, release_ns + wait_ns)
+            waited = time.monotonic_ns() - start
+            if not got:
+                self.late_gyro += 1
+                self.events.append(f"late gyro: tick {n} expected sample "
+                                   f"{grid.expected_seq(n)}, newest {newest()} after "
+                                   f"{a.gyro_wait_ms:g} ms")
+            rt = {"gyro_wait_s": waited / 1e9, "gyro_late": not got,
+                  "late_gyro": self.late_gyro, "gyro_seq_expected": grid.expected_seq(n),
+                  "gyro_seq": newest()}
+            self.tick(n, (start - release_ns) / 1e9, rt)
+
+        def housekeeping(n: int, release_ns: int) -> None:
+            beat = hb.poll(n * self.h, NodeState.SAFE if self.safe else NodeState.RUN)
+            if beat:
+                self.port.send(beat)
+
+        def on_tick(r: TickRecord) -> None:
+            if r.overrun:
+                self.overruns += 1
+                self.events.append(f"overrun: tick {r.tick} busy {r.busy_ns / 1e6:.2f} ms, "
+                                   f"{r.skipped} release(s) skipped")
+
+        per_hb = max(1, int(round(0.5 / self.h)))
+        sched = TickScheduler(
+            tick_ns,
+            [RateGroup("base", 1, 0, base), RateGroup("housekeeping", per_hb, 0, housekeeping)],
+            time.monotonic_ns, self._sleep_until, on_tick=on_tick)
+        stats = sched.run(t0_ns=grid.t0_ns, stop=stop)
+        self.rec.close()
+        say("flight", f"flight done: {stats.ticks} ticks, {stats.overruns} overruns, "
+                       f"{self.late_gyro} late gyro samples, "
+                       f"{time.process_time() - cpu0:.1f} s CPU")
+        return 0

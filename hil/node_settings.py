@@ -1,0 +1,120 @@
+"""The settings of a plant or flight process: one typed, frozen object made from its command line.
+
+``python -m hil.nodes NODE --scenario S.yaml --out DIR ...`` (``build_parser``) gives a
+``NodeSettings``; the shells read it and nothing mutates it. What the process learns at
+start-up about its scheduling (``sched_note``, ``rt_event``) is added with
+``dataclasses.replace`` before the shell is built.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, fields
+from typing import Literal
+
+from bus.catalog import HEARTBEAT_PERIOD_S
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    """One process's settings (the flags of ``build_parser``; units in the names).
+
+    ``lost_after``, ``heartbeat_lost_s``, ``gyro_lost_after``: None keeps the scenario's
+    ``safety:`` value. ``sched_note``: the scheduler policy the process got (first record);
+    ``rt_event``: the event line of a ``--rt-priority`` request.
+    """
+
+    node: Literal["plant", "flight"]
+    scenario: str
+    out: str
+    mode: Literal["lockstep", "realtime"] = "lockstep"
+    interface: str = "socketcan"
+    channel: str = "vcan0"
+    reply_timeout: float = 2.0
+    lost_after: int | None = None
+    heartbeat_lost_s: float | None = None
+    gyro_lost_after: int | None = None
+    gyro_wait_ms: float = 50.0
+    release_offset_ms: float = -2.0
+    align_samples: int = 3
+    rt_priority: bool = False
+    sched: Literal["auto", "other", "batch"] = "auto"
+    bus_log: bool = False
+    start_after: str | None = None
+    sched_note: str | None = None
+    rt_event: str | None = None
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> NodeSettings:
+        return cls(**{f.name: getattr(args, f.name) for f in fields(cls)
+                      if hasattr(args, f.name)})
+
+
+def parse_settings(argv: list[str] | None = None) -> NodeSettings:
+    """``NodeSettings`` from a node's command line (argparse errors exit 2)."""
+    return NodeSettings.from_args(build_parser().parse_args(argv))
+
+
+def _ticks(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {n}")
+    return n
+
+
+def _heartbeat_s(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not x > HEARTBEAT_PERIOD_S:
+        raise argparse.ArgumentTypeError(
+            f"expected > the heartbeat period {HEARTBEAT_PERIOD_S:g} s, got {x:g}")
+    return x
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m hil.nodes",
+                                description="The plant or flight process of the HIL.")
+    p.add_argument("node", choices=("plant", "flight"))
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
+    p.add_argument("--interface", default="socketcan")
+    p.add_argument("--channel", default="vcan0")
+    p.add_argument("--reply-timeout", type=float, default=2.0,
+                   help="lockstep: wall seconds the plant waits for THR_CMD(n) (generous: a "
+                        "loaded machine must not change a lockstep run; once the flight is "
+                        "declared lost the wait drops to 50 ms per tick)")
+    p.add_argument("--lost-after", type=_ticks,
+                   help="ticks without THR_CMD before the plant closes every valve "
+                        "(default: the scenario's safety.thr_cmd_lost_ticks, 3)")
+    p.add_argument("--heartbeat-lost-s", type=_heartbeat_s,
+                   help="real time: seconds of flight heartbeat silence before the plant "
+                        "closes every valve (default: safety.heartbeat_lost_s, 1.5)")
+    p.add_argument("--gyro-lost-after", type=_ticks,
+                   help="ticks without a valid gyro sample before the flight's safe mode "
+                        "(default: safety.gyro_lost_ticks, 3)")
+    p.add_argument("--gyro-wait-ms", type=float, default=50.0,
+                   help="real time: longest wait after a release for the tick's gyro sample "
+                        "(default 50 ms, a quarter of the tick)")
+    p.add_argument("--release-offset-ms", type=float, default=-2.0,
+                   help="real time: flight release relative to the earliest observed gyro "
+                        "arrival (default -2 ms: already waiting when the sample comes, and "
+                        "awake between the plant's pre-wake and its sample)")
+    p.add_argument("--align-samples", type=int, default=3,
+                   help="real time: gyro samples observed to place the flight's tick grid")
+    p.add_argument("--rt-priority", action="store_true", help="try SCHED_FIFO and mlockall")
+    p.add_argument("--sched", choices=("auto", "other", "batch"), default="auto",
+                   help="scheduler policy without --rt-priority (auto: plant SCHED_BATCH, "
+                        "flight SCHED_OTHER, see hil.process_policy.set_policy)")
+    p.add_argument("--bus-log", action="store_true", help="write NODE.bus.log (candump format)")
+    p.add_argument("--start-after", metavar="FILE",
+                   help="set up, then wait until FILE exists before the first tick (hil run "
+                        "starts both processes at once and gives the plant the flight's "
+                        "ready file: their start-ups overlap, the first SYNC finds the flight "
+                        "listening)")
+    return p

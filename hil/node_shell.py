@@ -1,0 +1,96 @@
+"""What the plant and flight process shells share: the stop flag, the CAN port, the first
+record's fields, the console line, and the small converters of the per-tick records.
+"""
+
+from __future__ import annotations
+
+import signal
+from dataclasses import replace
+from pathlib import Path
+
+from bus.catalog import CATALOG, Catalog
+from bus.receiver import Receiver
+from bus.transport import BusConfig, BusLogger, Port, open_bus
+from hil.config import Scenario, resolve_vehicle_path
+from hil.node_settings import NodeSettings
+
+XYZ = ("x", "y", "z")
+
+
+def round6(x: float | None) -> float | None:
+    """A time for a record, to the microsecond (None stays None)."""
+    return None if x is None else round(x, 6)
+
+
+def xyz_values(v, scale: float = 1.0) -> dict[str, float]:
+    """A 3-vector times ``scale`` as a series' ``{"x", "y", "z"}`` values."""
+    return {k: float(v[i]) * scale for i, k in enumerate(XYZ)}
+
+
+def named_values(names, values) -> dict[str, float]:
+    """Per-thruster values as a series' ``{name: value}``."""
+    return {n: float(x) for n, x in zip(names, values, strict=True)}
+
+
+class Stop:
+    """SIGTERM/SIGINT set a flag; loops finish the current tick and exit cleanly."""
+
+    def __init__(self) -> None:
+        self.flag = False
+        signal.signal(signal.SIGTERM, self._set)
+        signal.signal(signal.SIGINT, self._set)
+
+    def _set(self, *_: object) -> None:
+        self.flag = True
+
+    def __call__(self) -> bool:
+        return self.flag
+
+
+def lockstep_receiver(reply_timeout_s: float) -> Receiver:
+    """A receiver whose age limits follow the lockstep, not the wall clock.
+
+    In lockstep the plant is the time master and the lockstep protocol enforces the THR_CMD
+    deadline; a frame that waited in the socket while its reader computed (a slow or loaded
+    machine) is not stale in simulated time, and dropping it would make a run depend on the
+    machine. CRC, counter, length, range and completeness checks stay as they are.
+    """
+    limit = max(10 * reply_timeout_s, 5.0)
+    cat = Catalog(tuple(replace(f, deadline_s=max(f.deadline_s, limit)) for f in CATALOG.frames))
+    return Receiver(catalog=cat)
+
+
+def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
+    """The node's CAN port (lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log``
+    when ``settings.bus_log``)."""
+    s = settings
+    cfg = BusConfig(interface=s.interface, channel=s.channel)
+    logger = BusLogger(out / f"{name}.bus.log", channel=s.channel) if s.bus_log else None
+    receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
+    return Port(open_bus(cfg), receiver=receiver, logger=logger)
+
+
+def say(name: str, text: str) -> None:
+    print(f"[{name}] {text}", flush=True)
+
+
+
+
+def node_config(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
+    """The ``config`` field of a node's first record (see the module doc)."""
+    vfile = resolve_vehicle_path(sc.cfg.vehicle, relative_to=sc.path.parent)
+    return {"scenario": sc.cfg.name, "vehicle": sc.vehicle.name,
+            "vehicle_file": str(vfile.resolve()),
+            "thrusters": [t.name for t in sc.vehicle.thrusters], "mode": settings.mode,
+            "bus": f"{settings.interface} {settings.channel}", "safety": safety}
+
+
+def first_record(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
+    """Fields only the first record of a node carries (``config``, ``sched``, --rt events)."""
+    first: dict = {"config": node_config(sc, settings, safety)}
+    if settings.sched_note is not None:
+        first["sched"] = settings.sched_note
+    first["events"] = [settings.rt_event] if settings.rt_event else []
+    return first
+
+

@@ -1,0 +1,125 @@
+"""The per-tick records, declared once: what the process shells write (``plant.jsonl``,
+``flight.jsonl``) and the in-process run (``hil.sim``) keeps, and what the summary, the report,
+the bench and the recorder read. Units are in the field names (``_s`` seconds, ``_deg`` degrees,
+``_deg_s`` deg/s, ``_kg``, ``_m_s`` m/s, ``_ms`` milliseconds); body axes B.
+
+The fields both writers share are built here (``truth_fields``, ``detection_record``,
+``newly_active_faults``), so the in-process records equal the processes' by construction. A
+record also carries ``series`` (``{entity path: {label: value}}``, the rerun time series,
+listed in ``hil.recorder``) and ``events`` (text lines); the processes add the fields of their
+own clock and bus (``bus``, ``compute_s``, ``jitter_s``...).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from typing import Any, NotRequired, TypedDict
+
+import numpy as np
+
+from common.units import DEG
+
+
+class FaultEvent(TypedDict):
+    """A fault that became active (``faults_injected``): its start ``t_s``, the thruster (None
+    for gyro and bus faults), the kind, the thrust fraction it leaves and its scheduled end."""
+
+    t_s: float
+    thruster: str | None
+    type: str
+    fraction: float
+    clear_t_s: float | None
+
+
+class DetectionRecord(TypedDict):
+    """A detection the flight raised at tick ``tick`` (``t_s`` = tick x tick length): the
+    thruster, or the group it cannot tell apart; the kind; which test (``source``); its
+    integral residual ``rho``."""
+
+    t_s: float
+    tick: int
+    thruster: str | list[str]
+    type: str
+    source: str
+    rho: float
+
+
+class TruthFields(TypedDict):
+    """The plant's truth at the end of a tick: attitude error to the target and rate error
+    (relative to the orbit frame), fuel used by every thruster, thrust delta-v in body axes."""
+
+    att_err_deg: float
+    rate_err_deg_s: float
+    fuel_kg: float
+    dv_B_m_s: list[float]
+
+
+class PlantRecord(TruthFields):
+    """One ``plant.jsonl`` line (``t_s`` the plant's time at the end of tick ``tick``)."""
+
+    tick: int
+    t_s: float
+    faults_injected: list[FaultEvent]
+    faults_cleared: NotRequired[list[dict[str, Any]]]
+    series: NotRequired[dict[str, dict[str, float]]]
+    events: NotRequired[list[str]]
+    safe: NotRequired[bool]
+    bus: NotRequired[dict[str, int]]
+    # The last line only: the loop's wall and CPU time, when it started (CLOCK_MONOTONIC).
+    final: NotRequired[bool]
+    wall_s: NotRequired[float]
+    cpu_s: NotRequired[float | None]
+    loop_t0_monotonic_s: NotRequired[float | None]
+
+
+class FlightRecord(TypedDict):
+    """One ``flight.jsonl`` line (``t_s`` = the flight tick's time)."""
+
+    tick: int
+    t_s: float
+    detection: DetectionRecord | None
+    series: NotRequired[dict[str, dict[str, float]]]
+    events: NotRequired[list[str]]
+    compute_s: NotRequired[float]
+    stage_s: NotRequired[dict[str, float]]
+    jitter_s: NotRequired[float | None]
+    overruns: NotRequired[int]
+    safe: NotRequired[bool]
+    thr_cmd_on_ms: NotRequired[int]
+    bus: NotRequired[dict[str, int]]
+
+
+def truth_fields(truth, err_q: np.ndarray) -> TruthFields:
+    """``TruthFields`` of a ``plant.core.Truth`` and its error quaternion to the target."""
+    from flight.attitude import rotation_angle
+
+    return {
+        "att_err_deg": float(rotation_angle(err_q) * DEG),
+        "rate_err_deg_s": float(np.linalg.norm(truth.omega_BO_B_rad_s) * DEG),
+        "fuel_kg": float(np.sum(truth.fuel_kg)),
+        "dv_B_m_s": [float(x) for x in truth.dv_B_m_s],
+    }
+
+
+def detection_record(det, tick: int, tick_s: float,
+                     thruster_names: Sequence[str]) -> DetectionRecord:
+    """The record of a ``flight.detector.Detection`` raised at ``tick``."""
+    names = [thruster_names[i] for i in det.group]
+    return {"t_s": round(tick * tick_s, 6), "tick": tick,
+            "thruster": names[0] if len(names) == 1 else names,
+            "type": det.kind, "source": det.source, "rho": float(det.rho)}
+
+
+def newly_active_faults(entries: Iterable[Any], reported: set[int],
+                        t_s: float) -> list[FaultEvent]:
+    """The plant's fault entries active by ``t_s`` and not yet in ``reported`` (which is
+    updated): the ``faults_injected`` field."""
+    out: list[FaultEvent] = []
+    for e in entries:
+        if e.id not in reported and e.t_on_s <= t_s + 1e-9:
+            reported.add(e.id)
+            out.append({"t_s": round(e.t_on_s, 6), "thruster": e.spec.thruster,
+                        "type": e.spec.kind, "fraction": e.spec.effective_fraction,
+                        "clear_t_s": None if math.isinf(e.t_off_s) else e.t_off_s})
+    return out

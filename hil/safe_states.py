@@ -1,0 +1,93 @@
+"""The safe states of the process shells (docs/design.md section 4), sans-IO.
+
+The flight enters safe mode (no firing, FDIR_STATUS safe flag, heartbeat state SAFE) when no
+valid gyro sample arrived for ``gyro_lost_ticks`` ticks (``GyroLossWatch``); the real-time plant
+closes every valve (and manifold) when THR_CMD is missing for ``thr_cmd_lost_ticks`` ticks or
+the flight heartbeat is silent for ``heartbeat_lost_s`` (``FlightLinkWatch``). The counts come
+from the scenario's ``safety:`` block with the node's command-line overrides
+(``safety_settings``).
+"""
+
+from __future__ import annotations
+
+from bus.catalog import Node as NodeId
+from bus.codec import ThrCmd
+from bus.protocol import HeartbeatMonitor, PeerBack, PeerLost
+from hil.config import SafetyCfg, Scenario
+from hil.node_settings import NodeSettings
+
+
+class GyroLossWatch:
+    """Flight side of the safe states (sans-IO): safe mode after ``lost_ticks`` ticks in a row
+    without a valid gyro sample, left at the next valid one.
+
+    Call ``tick(fresh)`` once per flight tick (``fresh``: a sample that passed the receiver's
+    checks arrived since the last tick); it returns ``"lost"`` on entering safe mode,
+    ``"back"`` on leaving it, otherwise None.
+    """
+
+    def __init__(self, lost_ticks: int) -> None:
+        if lost_ticks < 1:
+            raise ValueError(f"GyroLossWatch: lost_ticks: expected >= 1, got {lost_ticks}")
+        self.lost_ticks = lost_ticks
+        self.ticks_without = 0
+        self.safe = False
+
+    def tick(self, fresh: bool) -> str | None:
+        self.ticks_without = 0 if fresh else self.ticks_without + 1
+        if not self.safe and self.ticks_without >= self.lost_ticks:
+            self.safe = True
+            return "lost"
+        if self.safe and fresh:
+            self.safe = False
+            return "back"
+        return None
+
+
+class FlightLinkWatch:
+    """Real-time plant side of the safe states (sans-IO; times are seconds on the plant's clock).
+
+    The flight is lost when its heartbeat has been silent for ``heartbeat_lost_s`` (counted
+    from ``start_s`` until a first beat), or, once a THR_CMD has come, when none came for
+    ``thr_cmd_lost_ticks`` ticks of ``tick_s``. ``poll(now_s)`` returns the reasons that newly
+    hold (each once per loss); ``on_message`` returns the events of the link coming back.
+    """
+
+    def __init__(self, tick_s: float, thr_cmd_lost_ticks: int, heartbeat_lost_s: float,
+                 start_s: float = 0.0) -> None:
+        self.thr_cmd_lost_ticks = thr_cmd_lost_ticks
+        self.cmd_limit_s = thr_cmd_lost_ticks * tick_s
+        # The monitor's timeout is period x missed_limit: here the configured silence.
+        self.mon = HeartbeatMonitor(NodeId.FLIGHT, start_s, period_s=heartbeat_lost_s,
+                                    missed_limit=1)
+        self.last_cmd_s: float | None = None
+        self.cmd_lost = False
+
+    def on_message(self, msg, t_s: float) -> list[str]:
+        out = [f"flight heartbeat back at {t_s:.2f} s" for ev in self.mon.on_message(msg, t_s)
+               if isinstance(ev, PeerBack)]
+        if isinstance(msg, ThrCmd):
+            self.last_cmd_s, self.cmd_lost = t_s, False
+        return out
+
+    def poll(self, now_s: float) -> list[str]:
+        out = [f"flight heartbeat lost ({ev.silent_s:.2f} s silent)"
+               for ev in self.mon.poll(now_s) if isinstance(ev, PeerLost)]
+        if self.last_cmd_s is not None and not self.cmd_lost and \
+                now_s - self.last_cmd_s > self.cmd_limit_s:
+            self.cmd_lost = True
+            out.append(f"no THR_CMD for {self.thr_cmd_lost_ticks} ticks")
+        return out
+
+    @property
+    def alive(self) -> bool:
+        return self.mon.alive
+
+
+def safety_settings(sc: Scenario, settings: NodeSettings) -> SafetyCfg:
+    """The scenario's ``safety`` block with this node's command-line overrides applied."""
+    over = {k: v for k, v in (("thr_cmd_lost_ticks", settings.lost_after),
+                              ("heartbeat_lost_s", settings.heartbeat_lost_s),
+                              ("gyro_lost_ticks", settings.gyro_lost_after))
+            if v is not None}
+    return sc.cfg.safety.model_copy(update=over) if over else sc.cfg.safety

@@ -1,0 +1,78 @@
+"""Golden traces: every reference scenario in ``configs/scenarios/`` run in-process
+(``hil.sim.simulate``), reduced to SHA-256 digests of the raw float64 bytes of the plant's truth
+and the flight's outputs per tick, plus the detections in full.
+
+The reference files ``tests/golden/<scenario>.json`` were written on the commit before the
+architecture restructuring; ``test_golden.py`` re-runs the scenarios and compares bit for bit.
+A change that is meant to change the numbers regenerates them on purpose::
+
+    .venv/bin/python -m tests.golden.golden            # every scenario
+    .venv/bin/python -m tests.golden.golden S000-stuck  # one
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+GOLDEN_DIR = Path(__file__).resolve().parent
+SCENARIO_DIR = GOLDEN_DIR.parents[1] / "configs" / "scenarios"
+
+TRUTH_FIELDS = ("q_BO", "q_BI", "omega_B_rad_s", "omega_BO_B_rad_s", "flex_q", "flex_qdot",
+                "flex_rate_gyro_B_rad_s", "v_O_m_s", "dv_B_m_s", "thrust_n", "valve_cmd",
+                "manifold_open", "impulse_Ns", "fuel_kg", "h_cmg_B_Nms")
+OUTPUT_FIELDS = ("on_ms", "manifold_open", "available", "omega_meas", "omega_est", "omega_pred",
+                 "residual", "gamma_est", "freq_est_hz", "xi", "rho_on", "rho_off")
+
+
+def scenario_names() -> list[str]:
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
+
+
+def _digest(rows: list[Any]) -> str:
+    h = hashlib.sha256()
+    for r in rows:
+        h.update(np.ascontiguousarray(np.asarray(r, dtype=np.float64)).tobytes())
+    return h.hexdigest()
+
+
+def trace(name: str) -> dict[str, Any]:
+    """Digests and detections of one in-process run of scenario ``name``."""
+    from hil.sim import simulate
+
+    run = simulate(SCENARIO_DIR / f"{name}.yaml", keep=True)
+    truth = {f: _digest([getattr(t, f) for t in run.truth]) for f in TRUTH_FIELDS}
+    truth["t_s"] = _digest([t.t_s for t in run.truth])
+    truth["fuel_total_kg"] = _digest([t.fuel_total_kg for t in run.truth])
+    outputs = {f: _digest([getattr(o, f) for o in run.outputs]) for f in OUTPUT_FIELDS}
+    records = hashlib.sha256(json.dumps([run.plant_records, run.flight_records],
+                                        sort_keys=True).encode()).hexdigest()
+    detections = [r["detection"] for r in run.flight_records if r["detection"] is not None]
+    last = run.truth[-1]
+    return {
+        "scenario": name,
+        "ticks": len(run.truth),
+        "final": {"t_s": float(last.t_s).hex(),
+                  "omega_B_rad_s": [float(x).hex() for x in last.omega_B_rad_s],
+                  "q_BO": [float(x).hex() for x in last.q_BO]},
+        "truth_sha256": truth,
+        "outputs_sha256": outputs,
+        "records_sha256": records,
+        "detections": detections,
+    }
+
+
+def write(names: list[str]) -> None:
+    for name in names:
+        out = GOLDEN_DIR / f"{name}.json"
+        out.write_text(json.dumps(trace(name), indent=1, sort_keys=True) + "\n")
+        print(f"golden: wrote {out.relative_to(GOLDEN_DIR.parents[1])}")
+
+
+if __name__ == "__main__":
+    write(sys.argv[1:] or scenario_names())
