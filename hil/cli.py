@@ -27,6 +27,7 @@ COMMAND_MODULES = (
     "hil.runall",
     "hil.report",
     "hil.bench",
+    "hil.campaign.cli",
 )
 
 

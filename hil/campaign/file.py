@@ -316,6 +316,13 @@ def load_campaign(path: str | Path) -> Campaign:
     if base_scenario is None and duration is None:
         raise CampaignError(where, "duration_s", "a duration (the base is a bare vehicle)",
                             _Bare("nothing"))
+    if fault is not None:
+        t_hi = (fault["t_s"].bounds() or (0.0, 0.0))[1]
+        d_lo = (duration.bounds() if duration else None) or (
+            (base_scenario or {}).get("duration_s", 0.0),) * 2
+        if t_hi >= d_lo[0]:
+            raise CampaignError(where, "fault.t_s", f"times before the shortest duration "
+                                f"({d_lo[0]:g} s)", _Bare(f"up to {t_hi:g} s"))
     c = Campaign(model=model, path=path, vehicle=vehicle, base_scenario=base_scenario,
                  vehicle_ref=ref, dists=dists, fault_dists=fault, duration=duration,
                  thrusters=thrusters, manifolds=manifolds)
