@@ -225,6 +225,16 @@ def _cmd_report(args) -> int:
 
 
 def _dispatch(args) -> int:
+    try:
+        return _route(args)
+    except CampaignError as exc:
+        if getattr(args, "debug", False):
+            raise
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _route(args) -> int:
     action = args.target if args.target in ACTIONS else "run"
     if action != "run":
         if not args.more:
@@ -232,21 +242,14 @@ def _dispatch(args) -> int:
                                 "DIR", "a path", _Bare("nothing"))
         args.target, args.more = args.more[0], args.more[1:]
     if args.more and action != "sweep":
-        raise CampaignError(f"hil campaign {action if action != 'run' else ''}".strip(),
-                            "arguments", "one FILE", args.more)
+        raise CampaignError(f"hil campaign {action}", "arguments", "one FILE", args.more)
     for key, flag in _FLAGS.items():
         val = getattr(args, key)
         if val not in (None, False) and key not in OPTIONS[action]:
             raise CampaignError(f"hil campaign {action}", flag, "no such option for this "
                                 "action", val)
-    try:
-        return {"run": _cmd_run, "expand": _cmd_expand, "sweep": _cmd_sweep,
-                "report": _cmd_report}[action](args)
-    except CampaignError as exc:
-        if getattr(args, "debug", False):
-            raise
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    return {"run": _cmd_run, "expand": _cmd_expand, "sweep": _cmd_sweep,
+            "report": _cmd_report}[action](args)
 
 
 def register(sub) -> None:

@@ -28,7 +28,8 @@ Validation is strict (unknown keys, wrong types, bad distributions) and every er
 line: ``configs/campaigns/x.yaml: dispersions.thrust_scale.uniform: expected [low, high] with
 low <= high, got [1.2, 0.8]``. Names of thrusters and manifolds are checked against the
 vehicle. Whatever the scenario loader itself rejects (for example a fault kind it does not
-know) is reported for run 0 before anything starts, and for any other run as that run's error.
+know) is reported for the first 16 runs before anything starts, and for any later run as that
+run's error.
 """
 
 from __future__ import annotations
@@ -345,19 +346,21 @@ def _per_kind(raw: Any, where: str, kind: str, kinds: Dist) -> Any:
     return parse_dist(raw, where, kind)
 
 
-def _check_run0(c: Campaign, where: str) -> None:
-    """Expand run 0 and load it as the scenario loader will in a task: a campaign whose first
-    run the loader rejects stops here with that one-line error."""
+def _check_run0(c: Campaign, where: str, first: int = 16) -> None:
+    """Expand the first runs and load them as the scenario loader will in a task: a campaign
+    whose early runs the loader rejects stops here with that one-line error (any later run
+    the loader rejects becomes that run's error row)."""
     import tempfile
 
     from hil.campaign.expansion import expand_run, write_run
     from hil.config import load_scenario
 
     with tempfile.TemporaryDirectory(prefix="hil-campaign-") as tmp:
-        p = write_run(expand_run(c, 0), Path(tmp), inline_vehicle=True)
-        try:
-            load_scenario(p)
-        except Exception as exc:  # noqa: BLE001 - the loader's own one-line error
-            msg = str(exc).split(": ", 1)[-1]
-            raise CampaignError(where, "run 0", "a run the scenario loader accepts",
-                                _Bare(msg)) from None
+        for k in range(min(first, c.runs)):
+            p = write_run(expand_run(c, k), Path(tmp) / str(k))
+            try:
+                load_scenario(p)
+            except Exception as exc:  # noqa: BLE001 - the loader's own one-line error
+                msg = str(exc).split(": ", 1)[-1]
+                raise CampaignError(where, f"run {k}", "a run the scenario loader accepts",
+                                    _Bare(msg)) from None
