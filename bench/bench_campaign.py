@@ -61,7 +61,8 @@ def measure(vehicle: str, runs: int, duration: float | None, workers: int) -> di
             "sim_s": sim_s, "wall_s": wall, "start_s": started,
             "runs_per_min": 60.0 * len(rows) / wall,
             "sim_per_wall_per_core": sim_s / wall / workers,
-            "task_mean_s": sum(r["wall_s"] for r in rows) / len(rows)}
+            "task_mean_s": sum(r["wall_s"] for r in rows) / len(rows),
+            "task_cpu_s": sum(r["cpu_s"] for r in rows) / len(rows)}
 
 
 def main() -> int:
@@ -77,7 +78,8 @@ def main() -> int:
           f"Python {platform.python_version()}; load average before: "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"{'vehicle':12s} {'workers':>7s} {'runs':>5s} {'wall s':>8s} {'runs/min':>9s} "
-          f"{'sim s/wall s/core':>18s} {'task mean s':>12s} {'cluster start s':>16s}")
+          f"{'sim s/wall s/core':>18s} {'task wall s':>12s} {'task cpu s':>11s} "
+          f"{'cluster start s':>16s}")
     results = []
     for v in args.vehicles:
         for w in args.workers:
@@ -85,6 +87,7 @@ def main() -> int:
             results.append(r)
             print(f"{v:12s} {w:7d} {r['runs']:5d} {r['wall_s']:8.1f} {r['runs_per_min']:9.1f} "
                   f"{r['sim_per_wall_per_core']:18.1f} {r['task_mean_s']:12.3f} "
+                  f"{r['task_cpu_s']:11.3f} "
                   f"{r['start_s']:16.1f}" + (f"  ({r['failed']} failed)" if r["failed"] else ""),
                   flush=True)
         by_w = {r["workers"]: r for r in results if r["vehicle"] == v}

@@ -130,6 +130,7 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
     doc = {"campaign": campaign, "file": campaign_file, "fingerprint": fingerprint,
            "runs_planned": runs_planned, "rows": len(rows),
            "wall_s_sum": round(sum(r.get("wall_s") or 0.0 for r in rows), 1),
+           "cpu_s_sum": round(sum(r.get("cpu_s") or 0.0 for r in rows), 1),
            **stats, "worst_runs": worst, **(extra or {})}
     (out / "campaign.json").write_text(json.dumps(doc, indent=2) + "\n")
     pngs = _plots(rows, stats, out)
