@@ -36,6 +36,7 @@ import sys
 import tempfile
 import time
 import traceback
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -228,6 +229,9 @@ class Executor:
         from distributed import Client, LocalCluster
 
         logging.getLogger("distributed").setLevel(logging.ERROR)
+        # Another cluster on this machine holds the default HTTP port: the scheduler picks
+        # another one and says so; nothing to tell the user.
+        warnings.filterwarnings("ignore", message="Port .* is already in use")
         if self.scheduler is None:
             with _sigint_ignored():
                 self.cluster = LocalCluster(

@@ -148,3 +148,35 @@ def test_a_raising_simulation_and_an_incomplete_summary_in_process(
                for st in doc["by_vehicle"]["generic"].values()) == 2
     assert (tmp_path / "report.md").exists() and (tmp_path / "latency.png").exists()
     assert json.loads((tmp_path / "campaign.json").read_text())["rows"] == RUNS
+
+
+def test_ctrl_c_stops_cleanly_and_keeps_what_finished(tmp_path: Path, ci_campaign_path: Path,
+                                                      reference: list[dict]) -> None:
+    out = tmp_path / "i"
+    proc = subprocess.Popen([sys.executable, "-m", "hil.cli", "campaign", str(ci_campaign_path),
+                             "--workers", "2", "--out", str(out)], start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rows = out / "runs.jsonl"
+    t_end = time.monotonic() + 120
+    while time.monotonic() < t_end and not (rows.exists() and rows.read_text().count("\n") >= 4):
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    kept = len(read_rows(rows))
+    assert 4 <= kept < RUNS
+    assert f"interrupted: {kept} of {RUNS} runs kept in" in stderr
+    assert "Traceback" not in stderr
+    # Nothing of the cluster is left behind in its process group (worker processes exit on
+    # their own shortly after the scheduler closed).
+    t_end = time.monotonic() + 20
+    while time.monotonic() < t_end:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.2)
+    else:
+        raise AssertionError("processes of the campaign's group still alive after 20 s")
+    assert table(read_rows(rows)) == [r for r in reference if r["run"] in
+                                      {x["run"] for x in read_rows(rows)}]
