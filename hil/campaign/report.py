@@ -61,7 +61,8 @@ def _plots(rows: list[dict[str, Any]], stats: dict[str, Any], out: Path) -> list
         fig.savefig(out / "latency.png", dpi=110)
         plt.close(fig)
         made.append("latency.png")
-    faults = [r for r in rows if r["fault"] is not None and r["verdict"] not in FAILED]
+    faults = [r for r in rows if r["fault"] is not None
+              and r["verdict"] not in (*FAILED, "unobservable")]
     if faults:
         inj = sorted({str(r["fault"].get("thruster")) for r in faults},
                      key=lambda s: (len(s), s))
@@ -84,7 +85,8 @@ def _plots(rows: list[dict[str, Any]], stats: dict[str, Any], out: Path) -> list
                     ax.text(j, i, str(m[i, j]), ha="center", va="center", fontsize=6)
         ax.set_xlabel("named by the first detection after the fault (groups apart; none)")
         ax.set_ylabel("injected thruster")
-        ax.set_title("isolation: injected vs named thruster (all fault kinds)", fontsize=9)
+        ax.set_title("isolation: injected vs named thruster (all fault kinds; unobservable runs "
+                     "apart)", fontsize=9)
         fig.tight_layout()
         fig.savefig(out / "confusion.png", dpi=110)
         plt.close(fig)

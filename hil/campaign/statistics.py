@@ -26,7 +26,7 @@ fault-free runs), each with its exact Clopper-Pearson 95 % interval:
 
 The confusion matrix counts, for fault runs, the injected (thruster, kind) against what the
 first detection after the fault named: a thruster, a group (its own column, "one of {...}"),
-or none.
+or none. Unobservable runs are not in it (counted apart).
 """
 
 from __future__ import annotations
@@ -214,7 +214,7 @@ def confusion(rows: list[dict[str, Any]]) -> dict[str, Any]:
         kinds: Counter = Counter()
         for r in rows:
             f = r["fault"]
-            if r["vehicle"] != veh or f is None or r["verdict"] in FAILED:
+            if r["vehicle"] != veh or f is None or r["verdict"] in (*FAILED, "unobservable"):
                 continue
             injected = f"{f.get('thruster')} {f['kind']}"
             named = r["named"] or "none"
