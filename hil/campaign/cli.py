@@ -22,7 +22,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hil.campaign.file import CampaignError, _Bare, load_campaign
+from hil.campaign.file import Bare, CampaignError, load_campaign
 
 ACTIONS = ("expand", "sweep", "report")
 # Which options each action takes (an option given to an action that does not use it is an
@@ -168,7 +168,7 @@ def _cmd_expand(args) -> int:
     c = load_campaign(args.target)
     if args.run is None:
         raise CampaignError("hil campaign expand", "--run", "run indices K[,K...]",
-                            _Bare("nothing"))
+                            Bare("nothing"))
     try:
         ks = [int(x) for x in args.run.split(",") if x.strip()]
     except ValueError:
@@ -215,7 +215,7 @@ def _cmd_report(args) -> int:
     meta = folder / "meta.json"
     if not meta.exists():
         raise CampaignError(str(folder), "meta.json", "a campaign results folder",
-                            _Bare("no meta.json"))
+                            Bare("no meta.json"))
     src = folder / "campaign.yaml"
     c = load_campaign(src)
     doc = _finish_report(c, folder)
@@ -239,7 +239,7 @@ def _route(args) -> int:
     if action != "run":
         if not args.more:
             raise CampaignError(f"hil campaign {action}", "FILE" if action != "report" else
-                                "DIR", "a path", _Bare("nothing"))
+                                "DIR", "a path", Bare("nothing"))
         args.target, args.more = args.more[0], args.more[1:]
     if args.more and action != "sweep":
         raise CampaignError(f"hil campaign {action}", "arguments", "one FILE", args.more)

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from hil.campaign.expansion import RunSpec, expand_run, needs_command, write_run
-from hil.campaign.file import Campaign, CampaignError, _Bare
+from hil.campaign.file import Bare, Campaign, CampaignError
 from hil.campaign.statistics import classify
 
 ROWS = "runs.jsonl"
@@ -112,7 +112,7 @@ def run_task(task: Task) -> dict[str, Any]:
     col = _Collector(task.record)
     tmp = tempfile.mkdtemp(prefix="hil-run-")
     try:
-        path = write_run(spec, Path(tmp))
+        path = write_run(spec, Path(tmp), absolute=True)
         sc = load_scenario(path)
         res = simulate(sc, on_tick=col)
         row = classify(spec, res.summary, commanded_after=_commanded_after(spec, col))
@@ -177,7 +177,7 @@ def prepare_folder(c: Campaign, out: Path, kind: str = "campaign") -> list[dict[
             raise CampaignError(
                 str(out), META, f"results of this {kind} ({c.name}, fingerprint "
                 f"{meta['fingerprint']}); use another --out or remove the folder",
-                _Bare(f"{old.get('kind', 'campaign')} {old.get('campaign')} (fingerprint "
+                Bare(f"{old.get('kind', 'campaign')} {old.get('campaign')} (fingerprint "
                       f"{old.get('fingerprint')})"))
     meta_path.write_text(json.dumps(meta, indent=2) + "\n")
     with contextlib.suppress(OSError):
@@ -244,7 +244,7 @@ class Executor:
             except (OSError, TimeoutError) as exc:
                 raise CampaignError("hil campaign", "--scheduler",
                                     "the address of a running Dask scheduler",
-                                    _Bare(f"{self.scheduler} ({exc})")) from None
+                                    Bare(f"{self.scheduler} ({exc})")) from None
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -223,16 +223,19 @@ def dump_yaml(d: dict[str, Any]) -> str:
     return yaml.dump(d, Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=100)
 
 
-def write_run(spec: RunSpec, out: Path, *, inline_vehicle: bool = False) -> Path:
+def write_run(spec: RunSpec, out: Path, *, inline_vehicle: bool = False,
+              absolute: bool = False) -> Path:
     """Write the run's scenario (and its vehicle when it differs from the base, or always with
-    ``inline_vehicle``) into ``out``; return the scenario's path."""
+    ``inline_vehicle``) into ``out``; return the scenario's path. The scenario names its
+    vehicle file by name (beside it), or by absolute path with ``absolute`` (tasks: a file of
+    the same name in the worker's working folder must not be taken instead)."""
     out.mkdir(parents=True, exist_ok=True)
     scen = dict(spec.scenario)
     if spec.vehicle_changed or inline_vehicle or spec.vehicle_ref == "inline":
         vpath = out / f"{spec.name}.vehicle.yaml"
         vpath.write_text(f"# vehicle of run {spec.run} ({spec.name}): the base vehicle with "
                          f"this run's gyro and flex draws\n" + dump_yaml(spec.vehicle))
-        scen["vehicle"] = vpath.name if not inline_vehicle else str(vpath.resolve())
+        scen["vehicle"] = str(vpath.resolve()) if absolute or inline_vehicle else vpath.name
     path = out / f"{spec.name}.yaml"
     path.write_text(dump_yaml(scen))
     return path

@@ -61,11 +61,11 @@ class CampaignError(Exception):
     def __init__(self, where: str, field: str, expected: str, found: object) -> None:
         self.where, self.field, self.expected, self.found = where, field, expected, found
         loc = f"{where}: {field}" if field else where
-        shown = found if isinstance(found, _Bare) else repr(found)
+        shown = found if isinstance(found, Bare) else repr(found)
         super().__init__(f"{loc}: expected {expected}, got {shown}")
 
 
-class _Bare(str):
+class Bare(str):
     """A found value printed as is (``nothing``, ``no such file``)."""
 
 
@@ -205,9 +205,9 @@ def _pydantic_error(where: str, exc: ValidationError) -> CampaignError:
         expected = err["msg"][0].lower() + err["msg"][1:]
     found: object = err.get("input")
     if t == "missing":
-        found = _Bare("nothing")
+        found = Bare("nothing")
     elif isinstance(found, dict):
-        found = _Bare("a mapping")
+        found = Bare("a mapping")
     return CampaignError(where, field_, expected, found)
 
 
@@ -215,7 +215,7 @@ def _read_yaml(path: Path, where: str) -> dict[str, Any]:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise CampaignError(where, "", "an existing file", _Bare("no such file")) from None
+        raise CampaignError(where, "", "an existing file", Bare("no such file")) from None
     except OSError as exc:
         raise CampaignError(where, "", "a readable file", exc.strerror) from None
     try:
@@ -286,7 +286,7 @@ def load_campaign(path: str | Path) -> Campaign:
         for name, raw in model.dispersions.items():
             if name not in DISPERSIONS:
                 raise DistError(f"dispersions.{name}",
-                                f"one of {sorted(DISPERSIONS)}", _Bare("an unknown name"))
+                                f"one of {sorted(DISPERSIONS)}", Bare("an unknown name"))
             spec = DISPERSIONS[name]
             if spec.per == "flex_mode" and n_modes == 0:
                 raise DistError(f"dispersions.{name}", "a vehicle with flex_modes",
@@ -316,14 +316,14 @@ def load_campaign(path: str | Path) -> Campaign:
         raise CampaignError(where, exc.field, exc.expected, exc.found) from None
     if base_scenario is None and duration is None:
         raise CampaignError(where, "duration_s", "a duration (the base is a bare vehicle)",
-                            _Bare("nothing"))
+                            Bare("nothing"))
     if fault is not None:
         t_hi = (fault["t_s"].bounds() or (0.0, 0.0))[1]
         d_lo = (duration.bounds() if duration else None) or (
             (base_scenario or {}).get("duration_s", 0.0),) * 2
         if t_hi >= d_lo[0]:
             raise CampaignError(where, "fault.t_s", f"times before the shortest duration "
-                                f"({d_lo[0]:g} s)", _Bare(f"up to {t_hi:g} s"))
+                                f"({d_lo[0]:g} s)", Bare(f"up to {t_hi:g} s"))
     c = Campaign(model=model, path=path, vehicle=vehicle, base_scenario=base_scenario,
                  vehicle_ref=ref, dists=dists, fault_dists=fault, duration=duration,
                  thrusters=thrusters, manifolds=manifolds)
@@ -357,10 +357,10 @@ def _check_run0(c: Campaign, where: str, first: int = 16) -> None:
 
     with tempfile.TemporaryDirectory(prefix="hil-campaign-") as tmp:
         for k in range(min(first, c.runs)):
-            p = write_run(expand_run(c, k), Path(tmp) / str(k))
+            p = write_run(expand_run(c, k), Path(tmp) / str(k), absolute=True)
             try:
                 load_scenario(p)
             except Exception as exc:  # noqa: BLE001 - the loader's own one-line error
                 msg = str(exc).split(": ", 1)[-1]
                 raise CampaignError(where, f"run {k}", "a run the scenario loader accepts",
-                                    _Bare(msg)) from None
+                                    Bare(msg)) from None
