@@ -1,6 +1,6 @@
 """``hil campaign``: Monte Carlo campaigns (DESIGN.md section 11).
 
-Usage::
+Usage:
 
     hil campaign FILE [--workers N | --scheduler tcp://HOST:8786] [--out DIR] [--bus]
     hil campaign expand FILE --run K[,K...] [--out DIR]
