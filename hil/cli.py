@@ -28,6 +28,7 @@ COMMAND_MODULES = (
     "hil.report",
     "hil.bench",
     "hil.soak",
+    "hil.campaign.cli",
 )
 
 

@@ -1,0 +1,1 @@
+"""Monte Carlo campaigns (DESIGN.md section 11): ``hil campaign``."""

@@ -1,0 +1,127 @@
+"""Campaign statistics against scipy.stats and hand counts; the verdict of one run."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+from scipy.stats import beta
+
+from hil.campaign.expansion import RunSpec
+from hil.campaign.statistics import campaign_statistics, classify, clopper_pearson
+
+
+def _beta_ci(k: int, n: int) -> tuple[float, float]:
+    # Clopper-Pearson from the beta quantiles (the definition), independent of binomtest.
+    lo = 0.0 if k == 0 else beta.ppf(0.025, k, n - k + 1)
+    hi = 1.0 if k == n else beta.ppf(0.975, k + 1, n - k)
+    return lo, hi
+
+
+@pytest.mark.parametrize("k, n", [(0, 10), (1, 10), (17, 100), (29, 100), (86, 100),
+                                  (100, 100), (3, 500), (0, 1)])
+def test_clopper_pearson_matches_beta_quantiles(k: int, n: int) -> None:
+    lo, hi = clopper_pearson(k, n)
+    blo, bhi = _beta_ci(k, n)
+    assert lo == pytest.approx(blo, abs=1e-9)
+    assert hi == pytest.approx(bhi, abs=1e-9)
+
+
+def test_no_runs_no_interval() -> None:
+    assert clopper_pearson(0, 0) is None
+
+
+def _row(run: int, cls: str, verdict: str, latency: float | None = None, **kw) -> dict:
+    r = {"run": run, "vehicle": "v", "fault_class": cls, "verdict": verdict,
+         "fault": None if cls == "none" else {"kind": cls, "thruster": "A", "t_s": 1.0},
+         "detections": [{"t_s": 5.0, "thruster": "A", "type": "stuck_on"}]
+         if verdict in ("false_alarm", "detected", "misidentified") else [],
+         "latency_s": latency, "detected_as": "exact" if verdict == "detected" else None,
+         "false_alarms_before_fault": 0, "named": None, "error": None, "reason": None,
+         "max_attitude_error_deg": 1.0}
+    r.update(kw)
+    return r
+
+
+def test_rates_on_known_counts() -> None:
+    rows = [_row(i, "none", "false_alarm") for i in range(17)]
+    rows += [_row(100 + i, "none", "pass") for i in range(83)]
+    rows += [_row(200, "none", "error", error="boom"), _row(201, "none", "incomplete",
+                                                              reason="short")]
+    lat = [1.0, 2.0, 3.0, 4.0, 10.0]
+    rows += [_row(300 + i, "stuck_on", "detected", latency=x) for i, x in enumerate(lat)]
+    rows += [_row(310, "stuck_on", "missed"), _row(311, "stuck_on", "misidentified",
+                                                   named="B stuck_on")]
+    rows += [_row(320 + i, "fail_to_fire", "unobservable") for i in range(4)]
+    rows += [_row(330, "fail_to_fire", "detected", latency=2.0, detected_as="group")]
+    s = campaign_statistics(rows)["by_vehicle"]["v"]
+    fa = s["none"]["false_alarm"]
+    assert (fa["k"], fa["n"]) == (17, 100)  # failures are in no rate
+    assert fa["ci95"] == pytest.approx(list(_beta_ci(17, 100)), abs=1e-6)
+    st = s["stuck_on"]
+    assert (st["missed_detection"]["k"], st["missed_detection"]["n"]) == (2, 7)
+    assert st["missed_detection"]["ci95"] == pytest.approx(list(_beta_ci(2, 7)), abs=1e-6)
+    assert st["misidentified"] == 1
+    assert st["latency_s"] == {"n": 5, "p50": 3.0, "p90": 7.6, "max": 10.0}
+    ff = s["fail_to_fire"]
+    assert ff["unobservable"] == 4 and ff["observable"] == 1
+    assert (ff["missed_detection"]["k"], ff["detected_group"]) == (0, 1)
+    assert s["all_faults"]["observable"] == 8
+    assert len(campaign_statistics(rows)["failures"]) == 2
+
+
+SPEC = RunSpec(run=0, name="c-00000", scenario={"duration_s": 10.0}, vehicle={
+    "name": "v", "timing": {"tick_s": 0.2}, "thrusters": [{"name": "A"}, {"name": "B"}]},
+    vehicle_changed=False, vehicle_ref="v", params={},
+    fault={"kind": "fail_to_fire", "thruster": "A", "t_s": 4.0})
+
+
+def _summary(**kw) -> dict:
+    s = {"detections": [], "false_alarms": [], "missed_faults": [
+        {"t_s": 4.0, "thruster": "A", "type": "fail_to_fire"}],
+        "faults": [{"t_s": 4.0, "thruster": "A", "type": "fail_to_fire"}], "ticks": 50,
+        "flight_ticks": 50, "max_attitude_error_deg": 1.0, "max_rate_error_deg_s": 0.1,
+        "fuel_kg": 0.01, "scenario": "s", "vehicle": "v", "mode": "in-process",
+        "expectations_met": True, "expectation_failures": [], "run_failures": [],
+        "verdict": "passed"}
+    s.update(kw)
+    return s
+
+
+def test_verdicts() -> None:
+    assert classify(SPEC, _summary(), commanded_after=True)["verdict"] == "missed"
+    r = classify(SPEC, _summary(), commanded_after=False)
+    assert r["verdict"] == "unobservable" and "never commanded" in r["reason"]
+    det = {"t_s": 6.0, "thruster": ["A", "B"], "type": "fail_to_fire", "latency_s": 2.0,
+           "correct": True}
+    r = classify(SPEC, _summary(detections=[det], missed_faults=[]), commanded_after=True)
+    assert (r["verdict"], r["detected_as"], r["latency_s"]) == ("detected", "group", 2.0)
+    assert r["named"] == "one of {A, B} fail_to_fire"
+    # A new detection type the summary judges wrong: a misidentification, read generically.
+    wrong = {"t_s": 5.0, "thruster": "B", "type": "gyro_fault", "correct": False}
+    r = classify(SPEC, _summary(detections=[wrong], false_alarms=[wrong]), commanded_after=True)
+    assert r["verdict"] == "misidentified" and r["named"] == "B gyro_fault"
+    early = {"t_s": 1.0, "thruster": "B", "type": "stuck_on", "correct": False}
+    r = classify(SPEC, _summary(detections=[early], false_alarms=[early]), commanded_after=True)
+    assert (r["verdict"], r["false_alarms_before_fault"]) == ("missed", 1)
+    free = replace(SPEC, fault=None)
+    assert classify(free, _summary(faults=[], missed_faults=[]))["verdict"] == "pass"
+    assert classify(free, _summary(detections=[early], faults=[], missed_faults=[],
+                                   false_alarms=[early]))["verdict"] == "false_alarm"
+
+
+@pytest.mark.parametrize("change, reason", [
+    ({"ticks": 49}, "49 plant ticks of 50"),
+    ({"flight_ticks": 10}, "10 flight ticks of 50"),
+    ({"faults": []}, "the fault fail_to_fire A at 4.0 s is not in the summary's faults"),
+    ({"fuel_kg": None}, "summary field fuel_kg missing"),
+    ({"detections": [{"t_s": 5.0, "type": "stuck_on"}]}, "a detection without type, thruster"),
+    ({"run_failures": ["the flight never ticked"], "verdict": "run_failed",
+      "expectations_met": False}, "the flight never ticked"),
+    ({"verdict": "passed", "run_failures": ["flight process died (signal 9)"]},
+     "summary: verdict: expected 'run_failed' from its failures, got 'passed'"),
+])
+def test_incomplete_summary_is_a_failure_never_a_pass(change: dict, reason: str) -> None:
+    r = classify(SPEC, _summary(**change), commanded_after=True)
+    assert r["verdict"] == "incomplete"
+    assert r["reason"].startswith(reason)
