@@ -164,13 +164,18 @@ class SafetyCfg(_Model):
     ``gyro_lost_ticks``: the flight enters its safe mode (no firing, FDIR_STATUS safe flag,
     heartbeat state SAFE) after this many ticks without a valid gyro sample (none arrived, or
     every one was rejected by the receiver), and leaves it on the next valid one. Entering and
-    leaving are events in the records and on the terminal. ``python -m hil.nodes`` flags
+    leaving are events in the records and on the terminal. ``recover_ticks``: fresh commands
+    of consecutive ticks the plant needs before it leaves its safe state.
+    ``python -m hil.nodes`` flags
     (``--lost-after``, ``--heartbeat-lost-s``, ``--gyro-lost-after``) override these.
     """
 
     thr_cmd_lost_ticks: int = Field(default=3, ge=1, strict=True)  # strict: `true` is no count
     heartbeat_lost_s: PosFloat = 1.5
     gyro_lost_ticks: int = Field(default=3, ge=1, strict=True)
+    # The plant leaves its safe state only after this many fresh THR_CMD of consecutive
+    # ticks (hil.safe_states.CommandGate), not on the first frame after a stall.
+    recover_ticks: int = Field(default=3, ge=1, le=50, strict=True)
 
 
 class ScenarioCfg(_Model):

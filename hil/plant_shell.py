@@ -14,7 +14,7 @@ import math
 import time
 from pathlib import Path
 
-from bus.catalog import AckReason, AckStatus, FaultAction, NodeState
+from bus.catalog import CATALOG, AckReason, AckStatus, FaultAction, NodeState
 from bus.catalog import Node as NodeId
 from bus.codec import FaultAck, FaultCmd, Gyro, ThrCmd
 from bus.protocol import CommandLost, DeadlineMissed, HeartbeatSender, PlantLockstep
@@ -28,10 +28,14 @@ from hil.node_shell import Stop, first_record, named_values, round6, say, xyz_va
 from hil.process_policy import idle_gc
 from hil.recorder import JsonlWriter
 from hil.records import PlantRecord, newly_active_faults, truth_fields
-from hil.safe_states import FlightLinkWatch, safety_settings
+from hil.safe_states import CommandGate, FlightLinkWatch, safety_settings
 
 REALTIME_MAX_WAIT_S = 0.02  # the real-time plant wakes at least this often (see run_realtime)
 REALTIME_PRE_WAKE_S = 0.005  # ... and this long before each gyro sample
+# A THR_CMD computed from a gyro sample older than this on arrival is stale (the catalog's
+# deadline of the THR_CMD frames: half a tick).
+THR_CMD_DEADLINE_S = CATALOG.frame("THR_CMD_0").deadline_s
+DROPPED_EVENTS_PER_CLASS = 5  # events for the first dropped commands of each class; then counts
 REPEAT_WINDOW_S = 10.0  # an identical FAULT_CMD this soon is the panel's resend (not applied)
 
 
@@ -57,6 +61,7 @@ class PlantShell:
         self.events: list[str] = []
         self.reported_faults: set[int] = set()
         self.gyro_time: dict[int, float] = {}   # seq -> sample time (sim s) for latency tracing
+        self.gate: CommandGate | None = None  # real time: the freshness of THR_CMD
         self.gyro_pub: dict[int, float] = {}    # seq -> when it was sent (real time only)
         self.last_gyro: Gyro | None = None
         self.safe = False
@@ -141,6 +146,17 @@ class PlantShell:
         self.plant.apply_command(cmd.tick, t_apply_s, on_ms, mask)
         self.last_cmd_tick_s = t_apply_s
 
+    def dropped_command(self, cmd: ThrCmd, verdict: str, rx_s: float,
+                        t_sample_s: float | None) -> None:
+        """A THR_CMD the gate refused: counted by class (``command_gate`` in the records) and
+        an event for the first few of each class, so a flood of them cannot flood the log."""
+        n = self.gate.counts[verdict]
+        if n <= DROPPED_EVENTS_PER_CLASS:
+            age = "" if t_sample_s is None else f", {1e3 * (rx_s - t_sample_s):.0f} ms after " \
+                                                   "its gyro sample"
+            more = " (further ones counted only)" if n == DROPPED_EVENTS_PER_CLASS else ""
+            self.events.append(f"THR_CMD of tick {cmd.tick} dropped: {verdict}{age}{more}")
+
     def go_safe(self, t_s: float, why: str) -> None:
         if not self.safe:
             self.safe = True
@@ -181,6 +197,8 @@ class PlantShell:
             extra = dict(extra)
             rec["series"].update(extra.pop("series", {}))
             rec.update(extra)
+        if self.gate is not None:
+            rec["command_gate"] = dict(self.gate.counts)
         if self.first:
             rec.update(self.first)
             self.first = {}
@@ -199,6 +217,7 @@ class PlantShell:
                              manifold_enable_safe=self.all_open)
         cpu0 = time.process_time()
         t_wall0 = time.monotonic()
+        good_in_a_row = 0
         for n in range(n_ticks):
             if stop():
                 break
@@ -226,11 +245,14 @@ class PlantShell:
                         self.events.append(f"deadline missed: tick {ev.tick} "
                                            f"({ev.consecutive} in a row)")
             res = lock.result
+            good_in_a_row = good_in_a_row + 1 if res is not None and not res.safe else 0
             if res is not None and not res.safe:
-                if self.safe:
+                if self.safe and good_in_a_row >= self.safety.recover_ticks:
                     self.safe = False
-                    self.events.append(f"THR_CMD back at tick {n}: leaving safe state")
-                self.apply(res.command, self.plant.apply_time(t_n))
+                    self.events.append(f"THR_CMD back at tick {n}: leaving safe state "
+                                       f"({good_in_a_row} ticks in a row)")
+                if not self.safe:
+                    self.apply(res.command, self.plant.apply_time(t_n))
             elif res is not None and not self.safe:
                 self.apply(res.command, self.plant.apply_time(t_n))
             self.plant.advance_to(t_n + self.h)
@@ -262,6 +284,7 @@ class PlantShell:
         hb = HeartbeatSender(NodeId.PLANT, 0.0)
         watch = FlightLinkWatch(self.h, self.safety.thr_cmd_lost_ticks,
                                 self.safety.heartbeat_lost_s)
+        gate = self.gate = CommandGate(THR_CMD_DEADLINE_S, self.safety.recover_ticks)
         period, gyro_latency = self.plant.gyro.period_s, self.plant.gyro.latency_s
         cmd_latency = self.sc.cfg.plant.command_latency_ms / 1e3
         next_record = self.h
@@ -297,17 +320,23 @@ class PlantShell:
             wait = min(max(due - t_now, 0.0), REALTIME_MAX_WAIT_S)
             for msg, rx in self.port.poll(wait):
                 rx_sim = self.port.to_monotonic_s(rx) - t0
+                if isinstance(msg, ThrCmd):
+                    t_meas = self.gyro_time.get(msg.gyro_seq)
+                    verdict = gate.judge(msg.tick, t_meas, rx_sim)
+                    if verdict != "fresh":  # counted, never applied, not a sign of life
+                        self.dropped_command(msg, verdict, rx_sim, t_meas)
+                        continue
                 self.events.extend(watch.on_message(msg, rx_sim))
                 if isinstance(msg, FaultCmd):
                     self.on_fault_cmd(msg)
                 elif isinstance(msg, ThrCmd):
                     t_apply = max(rx_sim, self.plant.t) + cmd_latency
-                    if self.safe and watch.alive:
+                    if self.safe and watch.alive and gate.may_leave_safe():
                         self.safe = False
-                        self.events.append(f"THR_CMD back at {rx_sim:.2f} s: leaving safe state")
+                        self.events.append(f"THR_CMD back at {rx_sim:.2f} s: leaving safe state "
+                                           f"({gate.run_length} fresh ticks in a row)")
                     if not self.safe:
                         self.apply(msg, t_apply)
-                    t_meas = self.gyro_time.get(msg.gyro_seq)
                     if t_meas is not None:
                         s2a.append(t_apply - t_meas)
                         chain.append({"tick": msg.tick, "gyro_seq": msg.gyro_seq,

@@ -65,6 +65,9 @@ class PlantRecord(TruthFields):
     series: NotRequired[dict[str, dict[str, float]]]
     events: NotRequired[list[str]]
     safe: NotRequired[bool]
+    # real time: THR_CMD by the plant's freshness verdict (hil.safe_states.CommandGate),
+    # fresh / stale / out_of_order / unknown_sample, counted since the start
+    command_gate: NotRequired[dict[str, int]]
     bus: NotRequired[dict[str, int]]
     # The last line only: the loop's wall and CPU time, when it started (CLOCK_MONOTONIC).
     final: NotRequired[bool]

@@ -84,6 +84,56 @@ class FlightLinkWatch:
         return self.mon.alive
 
 
+class CommandGate:
+    """Plant side: which THR_CMD may be applied, and when a safe state may be left (sans-IO;
+    times are seconds on the plant's clock).
+
+    A command is applied only when it belongs to a tick newer than the last one applied
+    (``out_of_order`` otherwise: a repeated, reordered or delayed frame) and it is fresh: the
+    gyro sample it was computed from (``ThrCmd.gyro_seq``) was taken at most ``deadline_s``
+    before the command arrived (``stale`` otherwise: a flight that stalled sends a command
+    for a craft that has moved on; ``unknown_sample`` when that sample is not one this plant
+    published). A dropped command is counted and never applied.
+
+    Leaving a safe state needs the flight's recovery to be established: ``recover_ticks``
+    fresh commands of consecutive ticks, not one frame. ``judge`` returns the class of the
+    command; ``may_leave_safe`` says whether the run of fresh consecutive commands is long
+    enough.
+    """
+
+    CLASSES = ("fresh", "stale", "out_of_order", "unknown_sample")
+
+    def __init__(self, deadline_s: float, recover_ticks: int) -> None:
+        if recover_ticks < 1:
+            raise ValueError(f"CommandGate: recover_ticks: expected >= 1, got {recover_ticks}")
+        self.deadline_s = deadline_s
+        self.recover_ticks = recover_ticks
+        self.last_tick: int | None = None
+        self.run_length = 0  # fresh commands of consecutive ticks, the newest last
+        self.counts = {k: 0 for k in self.CLASSES}
+
+    def judge(self, tick: int, t_sample_s: float | None, rx_s: float) -> str:
+        if self.last_tick is not None and tick <= self.last_tick:
+            verdict = "out_of_order"
+        elif t_sample_s is None:
+            verdict = "unknown_sample"
+        elif rx_s - t_sample_s > self.deadline_s:
+            verdict = "stale"
+        else:
+            verdict = "fresh"
+        self.counts[verdict] += 1
+        if verdict == "fresh":
+            consecutive = self.last_tick is not None and tick == self.last_tick + 1
+            self.run_length = self.run_length + 1 if consecutive else 1
+            self.last_tick = tick
+        elif verdict != "out_of_order":
+            self.run_length = 0
+        return verdict
+
+    def may_leave_safe(self) -> bool:
+        return self.run_length >= self.recover_ticks
+
+
 def safety_settings(sc: Scenario, settings: NodeSettings) -> SafetyCfg:
     """The scenario's ``safety`` block with this node's command-line overrides applied."""
     over = {k: v for k, v in (("thr_cmd_lost_ticks", settings.lost_after),

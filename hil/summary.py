@@ -229,6 +229,9 @@ def summarise(
         "compute_ms": percentiles_ms(compute),
         "release_jitter_ms": percentiles_ms(jitter) if jitter else None,
         "bus": {"plant": last_plant.get("bus", {}), "flight": last_flight.get("bus", {})},
+        # real time: THR_CMD the plant applied (fresh) or dropped, by class
+        "command_gate": next((r["command_gate"] for r in reversed(plant_records)
+                              if r.get("command_gate")), None),
         "safe_events": [e for r in plant_records + flight_records for e in r.get("events", [])
                         if "safe" in e or "lost" in e],
     }

@@ -241,7 +241,8 @@ def test_generated_numeric_arguments_are_checked_before_anything_boots(
         x = float("nan")
     if option[-1] in ("--kill-flight-at", "--at") and 0 <= x <= MAX_DURATION_S:
         return  # a valid time: the command would really start
-    if option[-1] in ("--duration", "--timeout", "--detection-time") and 0 < x <= 3600:
+    upper = {"--duration": MAX_DURATION_S, "--timeout": 3600.0, "--detection-time": 86400.0}
+    if option[-1] in upper and 0 < x <= upper[option[-1]]:
         return
     if option[-1] in ("--fraction", "--xi-mean") and 0 <= x <= 1:
         return

@@ -100,14 +100,17 @@ def test_settings_come_from_the_scenario_and_the_node_flags_override(tmp_path) -
     sc = load_scenario(scen)
     base = _args("plant", scen, tmp_path, "x", "lockstep")
     assert safety_settings(sc, base).model_dump() == {
-        "thr_cmd_lost_ticks": 5, "heartbeat_lost_s": 2.5, "gyro_lost_ticks": 4}
+        "thr_cmd_lost_ticks": 5, "heartbeat_lost_s": 2.5, "gyro_lost_ticks": 4,
+        "recover_ticks": 3}
     over = _args("plant", scen, tmp_path, "x", "lockstep", "--lost-after", "2",
                  "--heartbeat-lost-s", "0.8", "--gyro-lost-after", "6")
     assert safety_settings(sc, over).model_dump() == {
-        "thr_cmd_lost_ticks": 2, "heartbeat_lost_s": 0.8, "gyro_lost_ticks": 6}
+        "thr_cmd_lost_ticks": 2, "heartbeat_lost_s": 0.8, "gyro_lost_ticks": 6,
+        "recover_ticks": 3}
     default = load_scenario(_scenario(tmp_path))
     assert safety_settings(default, base).model_dump() == {
-        "thr_cmd_lost_ticks": 3, "heartbeat_lost_s": 1.5, "gyro_lost_ticks": 3}
+        "thr_cmd_lost_ticks": 3, "heartbeat_lost_s": 1.5, "gyro_lost_ticks": 3,
+        "recover_ticks": 3}
 
 
 @pytest.mark.parametrize(("flag", "value", "msg"), [
@@ -248,11 +251,11 @@ def test_realtime_plant_closes_every_valve_when_thr_cmd_stops(tmp_path) -> None:
         k = 0
         while not done.is_set() and time.monotonic() - t0 < 1.6:
             flight.send(Heartbeat(Node.FLIGHT, NodeState.RUN))
-            if time.monotonic() - t0 < 0.6:
-                flight.send(ThrCmd(k, (20,) * 6, 1, 0))
+            seq = _next_gyro_seq(flight, 0.3)
+            if time.monotonic() - t0 < 0.6 and seq is not None:
+                flight.send(ThrCmd(k, (20,) * 6, 1, seq))  # fresh: from the newest sample
                 t_last_cmd.append(time.monotonic() - t0)
             k += 1
-            time.sleep(0.1)
 
     th = threading.Thread(target=fake_flight)
     th.start()
@@ -278,6 +281,92 @@ def test_realtime_plant_closes_every_valve_when_thr_cmd_stops(tmp_path) -> None:
                if r["t_s"] < 0.6) > 0.5
     after = [r for r in recs if r["t_s"] >= safe_at + 0.2]
     assert after and all(max(r["series"]["truth/thrust_n"].values()) < 1e-6 for r in after)
+
+
+def _next_gyro_seq(port: Port, wait_s: float) -> int | None:
+    """The sequence number of the next GYRO sample to arrive within ``wait_s`` (a flight
+    computes its tick from the sample as soon as it comes)."""
+    t_end = time.monotonic() + wait_s
+    while time.monotonic() < t_end:
+        for msg, _ in port.poll(max(0.0, t_end - time.monotonic())):
+            if isinstance(msg, Gyro):
+                return msg.sample_seq
+    return None
+
+
+def test_realtime_stale_and_out_of_order_commands_are_dropped_and_counted(tmp_path) -> None:
+    """Issue 17: after a stall a flight sends a command computed from a gyro sample taken
+    before it; before, the plant applied it (it lifted the safe state and fired).
+    Now it is dropped and counted as stale, a repeated tick as out of order, and the plant
+    leaves its safe state only after ``recover_ticks`` fresh commands of consecutive ticks."""
+    shell, flight, out = _plant_bench(
+        tmp_path, "safety: {thr_cmd_lost_ticks: 2, heartbeat_lost_s: 1.0, recover_ticks: 3}\n",
+        2.6, "realtime")
+    done = threading.Event()
+    log: list[tuple[str, float]] = []
+
+    def fake_flight() -> None:
+        t0 = time.monotonic()
+        k, seen, last_k = 0, [], 0  # seen: (gyro seq, when it arrived)
+        while not done.is_set() and time.monotonic() - t0 < 2.1:
+            flight.send(Heartbeat(Node.FLIGHT, NodeState.RUN))
+            seq = _next_gyro_seq(flight, 0.3)
+            now = time.monotonic() - t0
+            if seq is None:
+                continue
+            seen.append((seq, now))
+            old = [q for q, t in seen if t < now - 0.5]
+            if 0.9 <= now and old and not any(w == "stale" for w, _ in log):
+                # After a stall: a command computed from a sample of half a second ago,
+                # then the last applied tick once more.
+                flight.send(ThrCmd(k, (20,) * 6, 1, old[-1]))
+                log.append(("stale", now))
+                flight.send(ThrCmd(last_k, (20,) * 6, 1, seq))
+                log.append(("repeat", now))
+            elif not 0.5 <= now < 0.9:  # 0.5-0.9 s: silent (the plant goes safe)
+                flight.send(ThrCmd(k, (20,) * 6, 1, seq))
+                log.append(("fresh", now))
+                last_k = k
+            k += 1
+
+    th = threading.Thread(target=fake_flight)
+    th.start()
+    try:
+        assert shell.run_realtime(lambda: False) == 0
+    finally:
+        done.set()
+        th.join()
+        shell.port.close()
+        flight.close()
+    recs = [r for r in read_jsonl(out / "plant.jsonl") if not r.get("final")]
+    events = [(r["t_s"], e) for r in recs for e in r["events"]]
+    gate = recs[-1]["command_gate"]
+    assert gate["stale"] == 1 and gate["out_of_order"] == 1, (gate, log, events)
+    assert gate["fresh"] == sum(1 for w, _ in log if w == "fresh")
+    assert any("dropped: stale" in e for _, e in events), events
+    assert any("dropped: out_of_order" in e for _, e in events), events
+    # The stall made the plant safe (no THR_CMD for 2 ticks); the stale command did not lift
+    # it; three fresh ticks in a row did.
+    t_safe = next(t for t, e in events if e.startswith("safe:"))
+    t_back = next(t for t, e in events if "leaving safe state" in e)
+    t_stale = next(t for w, t in log if w == "stale")
+    assert t_safe < t_back and t_back > t_stale + 0.2, (events, log)
+    assert "(3 fresh ticks in a row)" in next(e for _, e in events if "leaving safe" in e)
+
+
+def test_command_gate_classes_and_recovery() -> None:
+    from hil.safe_states import CommandGate
+
+    g = CommandGate(0.1, recover_ticks=3)
+    assert g.judge(0, 0.00, 0.01) == "fresh" and g.run_length == 1
+    assert g.judge(0, 0.00, 0.02) == "out_of_order"          # the same tick again
+    assert g.judge(1, 0.20, 0.31) == "stale"                 # 110 ms after its sample
+    assert g.run_length == 0 and not g.may_leave_safe()
+    assert g.judge(2, None, 0.45) == "unknown_sample"
+    assert [g.judge(n, 0.2 * n, 0.2 * n + 0.01) for n in (3, 4, 5)] == ["fresh"] * 3
+    assert g.may_leave_safe()
+    assert g.judge(7, 1.4, 1.41) == "fresh" and g.run_length == 1  # tick 6 never came
+    assert g.counts == {"fresh": 5, "stale": 1, "out_of_order": 1, "unknown_sample": 1}
 
 
 def test_realtime_plant_closes_every_valve_when_the_heartbeat_is_lost(tmp_path) -> None:
