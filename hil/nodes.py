@@ -46,6 +46,8 @@ from hil.node_settings import parse_settings
 from hil.node_shell import Stop, open_port, say
 from hil.plant_shell import PlantShell
 from hil.process_policy import quiet_gc, realtime_event, set_policy, try_realtime_priority
+from hil.recorder import OutputLost
+from hil.verdict import EXIT_OUTPUT_LOST
 
 
 def wait_for_file(path: Path, stop: Stop, poll_s: float = 0.005) -> bool:
@@ -83,6 +85,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         run = shell.run_lockstep if settings.mode == "lockstep" else shell.run_realtime
         return run(stop)
+    except OutputLost as exc:
+        # Disk full, read-only or failing: the node's records end with the last whole line.
+        # The plant closes every valve; either node then stops and says why in its exit code.
+        if settings.node == "plant":
+            shell.plant.close_all_valves(shell.plant.t, manifolds=True)
+        say(settings.node, f"output lost, stopping (safe): {exc.strerror}")
+        return EXIT_OUTPUT_LOST
     finally:
         port.close()
 

@@ -41,25 +41,41 @@ from pathlib import Path
 from typing import Any
 
 
+class OutputLost(OSError):
+    """A record could not be written (disk full, read-only file system, I/O error); the file
+    ends with the last whole record (``JsonlWriter.write``)."""
+
+
 class JsonlWriter:
     """Append-only JSON lines file, one object per tick, each line one ``write(2)``.
 
     A whole line goes to the kernel in a single system call, so a process killed with
-    SIGKILL (the reliability check) leaves whole lines behind, never a torn one.
+    SIGKILL (the reliability check) leaves whole lines behind, never a torn one. When the
+    write fails part way (ENOSPC, EIO, EROFS) the file is cut back to its last whole line and
+    ``OutputLost`` raised: a full disk leaves no torn line either.
     """
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        self._size = os.fstat(self._fd).st_size  # end of the last whole line
 
     def write(self, record: dict[str, Any]) -> None:
         if self._fd is None:
             raise ValueError(f"{self.path}: write after close")
         data = (json.dumps(record, separators=(",", ":"), allow_nan=True) + "\n").encode()
         view = memoryview(data)
-        while view:
-            view = view[os.write(self._fd, view):]
+        try:
+            while view:
+                view = view[os.write(self._fd, view):]
+        except OSError as exc:
+            try:
+                os.ftruncate(self._fd, self._size)
+            except OSError:
+                pass  # nothing more can be done for this file
+            raise OutputLost(exc.errno, f"{self.path}: {exc.strerror}") from exc
+        self._size += len(data)
 
     def close(self) -> None:
         if self._fd is not None:

@@ -104,19 +104,27 @@ class BusMonitor(threading.Thread):
         self.bus = open_bus(BusConfig(interface=interface, channel=channel))
         self.writer = can.CanutilsLogWriter(str(path), channel=channel)
         self.frames = 0
+        self.error: str | None = None  # why bus.log stopped (disk full...), None if it did not
         self._halt = threading.Event()
 
     def run(self) -> None:
         while not self._halt.is_set():
             m = self.bus.recv(0.1)
-            if m is not None:
-                self.writer.on_message_received(m)
+            if m is not None and self.error is None:
+                try:
+                    self.writer.on_message_received(m)
+                except OSError as exc:  # the bus log is lost from here; the run goes on
+                    self.error = f"bus.log: {exc.strerror or exc}"
+                    continue
                 self.frames += 1
 
     def stop(self) -> None:
         self._halt.set()
         self.join(2.0)
-        self.writer.stop()
+        try:
+            self.writer.stop()
+        except OSError as exc:
+            self.error = self.error or f"bus.log: {exc.strerror or exc}"
         self.bus.shutdown()
 
 
@@ -231,8 +239,12 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         monitor.stop()
         for f in logs.values():
             f.close()
+    io_errors = [monitor.error] if monitor.error else []
     if rrd is None:
-        build_rrd(out, recording_id=sc.cfg.name)
+        try:
+            build_rrd(out, recording_id=sc.cfg.name)
+        except (OSError, RuntimeError) as exc:  # rerun reports I/O errors as RuntimeError
+            io_errors.append(f"run.rrd: {getattr(exc, 'strerror', None) or exc}")
     # Everything the processes wrote, up to their last tick (also after a kill).
     plant_records = list(read_jsonl(out / "plant.jsonl"))
     flight_records = list(read_jsonl(out / "flight.jsonl"))
@@ -251,10 +263,45 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                "where": "user-mode Linux" if os.environ.get(INSIDE_UML_ENV) else "native"},
         expected_ticks=None if endless else n_ticks,
         exit_codes={k: p.returncode for k, p in procs.items()}, killed=killed,
-        interrupted=interrupted and not endless,
+        interrupted=interrupted and not endless, io_error="; ".join(io_errors) or None,
     )
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_summary(out, summary)
     return summary
+
+
+def write_summary(out: Path, summary: dict) -> None:
+    """``summary.json`` whole or not at all (written beside, then renamed). When it cannot be
+    written (disk full, read-only), the run is failed with that reason and the summary goes
+    to stderr as one JSON line, so the verdict is never lost."""
+    path = out / "summary.json"
+    tmp = out / ".summary.json.tmp"
+    try:
+        tmp.write_text(json.dumps(summary, indent=2) + "\n")
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        reason = f"output could not be written: summary.json: {exc.strerror or exc}"
+        summary["run_failures"] = [*summary["run_failures"], reason]
+        summary["expectations_met"] = False
+        summary["verdict"] = "run_failed"
+        print(f"hil: {reason}; the summary follows on stderr", file=sys.stderr)
+        print(json.dumps(summary, separators=(",", ":")), file=sys.stderr)
+
+
+def check_writable(out: Path) -> None:
+    """Before anything boots: the output folder exists or can be made, and takes a file."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".hil-write-probe-{os.getpid()}"
+        with probe.open("wb") as f:
+            f.write(b"x" * 4096)
+            f.flush()
+            os.fsync(f.fileno())
+        probe.unlink()
+    except OSError as exc:
+        raise UsageError(f"{out}: expected a folder the run can write to, got "
+                         f"{exc.strerror or exc}") from None
 
 
 SPEED_BASIS = ("simulated seconds per wall second of the plant's loop, its first tick to its "
@@ -316,6 +363,7 @@ def _cmd_run(args) -> int:
     scenario = Path(args.scenario)
     sc = load_scenario(scenario)  # config errors exit 2 before anything starts
     out = Path(args.out or Path("runs") / sc.cfg.name)
+    check_writable(out)  # before user-mode Linux boots
     argv = ["run", str(scenario.resolve()), "--mode", args.mode, "--out", str(out.resolve()),
             "--interface", args.interface, "--channel", args.channel]
     if args.kill_flight_at is not None:
@@ -332,6 +380,7 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_up(args) -> int:
+    check_writable(Path(args.out or "runs/up"))  # before anything is made or boots
     if args.scenario:
         scenario = Path(args.scenario).resolve()
         load_scenario(scenario)  # config errors exit 2 before anything starts

@@ -25,6 +25,7 @@ EXIT_PASSED = 0
 EXIT_NOT_MET = 1
 EXIT_USAGE = 2
 EXIT_RUN_FAILED = 3
+EXIT_OUTPUT_LOST = 4  # a node's exit code when it could not write its records (disk full...)
 
 VERDICTS = ("passed", "not_met", "run_failed")
 EXIT_CODES = {"passed": EXIT_PASSED, "not_met": EXIT_NOT_MET, "run_failed": EXIT_RUN_FAILED}
@@ -76,7 +77,10 @@ def run_integrity(
     for node, t in (killed or {}).items():
         reasons.append(f"{node} process killed on request at {t:g} s (--kill-flight-at)")
     for node, rc in sorted((exit_codes or {}).items()):
-        if rc is not None and rc not in CLEAN_EXIT_CODES and node not in (killed or {}):
+        if rc == EXIT_OUTPUT_LOST:
+            reasons.append(f"{node} process stopped: it could not write its records (disk "
+                           f"full, read-only or failing); see {node}.log")
+        elif rc is not None and rc not in CLEAN_EXIT_CODES and node not in (killed or {}):
             how = f"signal {-rc}" if rc < 0 else f"exit code {rc}"
             reasons.append(f"{node} process died ({how}); see {node}.log")
     if not plant:
