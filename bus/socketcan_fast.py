@@ -39,6 +39,10 @@ from bus.transport import to_can_message
 INTERFACE_NAME = "hil_socketcan"
 
 _EFF, _RTR, _ERR = constants.CAN_EFF_FLAG, constants.CAN_RTR_FLAG, constants.CAN_ERR_FLAG
+# SO_RXQ_OVFL (linux/socket.h): each received frame carries the socket's count of frames the
+# kernel dropped because the receive queue was full (uint32, cumulative).
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+_ANC_SIZE = _sc.RECEIVED_ANCILLARY_BUFFER_SIZE + socket.CMSG_SPACE(4)
 
 
 class FastSocketcanBus(_sc.SocketcanBus):
@@ -47,6 +51,14 @@ class FastSocketcanBus(_sc.SocketcanBus):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self._mm: _Sendmmsg | None | bool = False  # made on first use (buffers of this bus)
+        # Frames the kernel dropped for this socket (receive queue full): None where the
+        # kernel does not report it.
+        self.kernel_drops: int | None = None
+        try:
+            self.socket.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+            self.kernel_drops = 0
+        except OSError:
+            pass
 
     def send_frame(self, fr: Frame) -> bool:
         """One non-blocking ``send(2)``; False when the queue is full or the interface down
@@ -80,7 +92,7 @@ class FastSocketcanBus(_sc.SocketcanBus):
         sock = self.socket
         if timeout_s > 0 and not select.select([sock], [], [], timeout_s)[0]:
             return
-        mtu, anc_size = constants.CANFD_MTU, _sc.RECEIVED_ANCILLARY_BUFFER_SIZE
+        mtu, anc_size = constants.CANFD_MTU, _ANC_SIZE
         ts_struct = _sc.RECEIVED_TIMESTAMP_STRUCT
         while True:
             try:
@@ -89,9 +101,14 @@ class FastSocketcanBus(_sc.SocketcanBus):
                 return
             can_id, dlc, _fl, data = _sc.dissect_can_frame(cf)
             ts = 0.0
-            if anc:
-                sec, ns = ts_struct.unpack_from(anc[0][2])
-                ts = sec + ns * 1e-9
+            for level, kind, payload in anc:
+                if level != socket.SOL_SOCKET:
+                    continue
+                if kind == SO_RXQ_OVFL and len(payload) >= 4:
+                    self.kernel_drops = int.from_bytes(payload[:4], "little")
+                elif kind == constants.SO_TIMESTAMPNS and len(payload) >= ts_struct.size:
+                    sec, ns = ts_struct.unpack_from(payload)
+                    ts = sec + ns * 1e-9
             ext = bool(can_id & _EFF)
             rtr, err = bool(can_id & _RTR), bool(can_id & _ERR)
             arb = can_id & (0x1FFFFFFF if ext else 0x7FF)

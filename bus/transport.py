@@ -283,7 +283,11 @@ class Port:
             got.append((from_can_message(m), m))
 
     def counts(self) -> dict[str, int]:
-        return {**self.receiver.counts(), "tx_frames": self.tx_frames, "tx_errors": self.tx_errors}
+        out = {**self.receiver.counts(), "tx_frames": self.tx_frames, "tx_errors": self.tx_errors}
+        drops = getattr(self.bus, "kernel_drops", None)
+        if drops is not None:  # SocketCAN: frames the kernel dropped, receive queue full
+            out["kernel_drops"] = drops
+        return out
 
     def close(self) -> None:
         if self.logger:
