@@ -104,8 +104,13 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
         if out.detection is not None:
             d = out.detection
             grp = [names[i] for i in d.group]
-            det = {"t_s": round(t_n, 6), "tick": n, "thruster": grp[0] if len(grp) == 1 else grp,
+            det = {"t_s": round(t_n, 6), "tick": n,
+                   "thruster": (grp[0] if len(grp) == 1 else grp) if grp else None,
                    "type": d.kind, "source": d.source, "rho": float(d.rho)}
+            if d.fraction is not None:
+                det["fraction"] = round(float(d.fraction), 4)
+            if d.kind == "gyro_fault":
+                det["gyro"] = d.names[0]
         flight_recs.append({"tick": n, "t_s": round(t_n, 6), "detection": det})
         if keep:
             outputs.append(out)
