@@ -117,11 +117,13 @@ def opposite_matrix(e_B: np.ndarray, opposite_deg: float) -> np.ndarray:
     return (e_B @ e_B.T) <= -(cos_tol - 1e-12)
 
 
+# Ticks of a thruster's own burns the reported thrust fraction is the mean of.
+_FRACTION_TICKS = 3
+
+
 # Normalised innovation (chi^2, 3 degrees of freedom) above which the effectiveness estimate of
 # the burning thrusters restarts from its prior variance: 25 is ~1e-5 for a consistent filter.
 _CHI2_RESET = 25.0
-# Ticks of a thruster's own burns the reported thrust fraction is the mean of.
-_FRACTION_TICKS = 3
 
 
 class Effectiveness:
@@ -148,10 +150,9 @@ class Effectiveness:
     size the vehicle admits (DESIGN 10: +/-15 %) are learnt and stop reading as faults, while
     a thruster that fails to fire or is degraded below the bound leaves the rest of its error
     in the residual, so the commanded evidence judges it against the learnt effectiveness.
-    ``fraction`` (``theta`` in [0, 1.5]) is reported with a degraded detection. An innovation
-    beyond the random walk (chi^2 above ``_CHI2_RESET``) restarts the variance of the burning
-    thrusters' ``theta`` and of every leak, so a fault's new thrust is estimated within a few
-    ticks.
+    ``fraction`` is reported with a degraded detection. An innovation beyond the random walk
+    (chi^2 above ``_CHI2_RESET``) restarts the variance of the burning thrusters' ``theta``
+    and of every leak, so a new thrust is estimated within a few ticks.
 
     ``trust()`` keeps a copy of the estimate while the detector's evidence is quiet; after a
     response ``restore()`` goes back to it, so what the fault pushed does not carry into the
@@ -243,6 +244,9 @@ class Effectiveness:
         self.x = self.x + K @ nu
         self.P = self.P - K @ (H @ Pc.T)
         self.P = 0.5 * (self.P + self.P.T)
+        # A leak is thrust of a closed valve: never negative. Without this, an opposite pair
+        # "both leaking and both weaker" is the same data as neither (the leaks cancel).
+        np.clip(self.x[n:], 0.0, None, out=self.x[n:])
 
     def trust(self) -> None:
         self._trusted = (self.x.copy(), self.P.copy())
@@ -346,6 +350,12 @@ class Detector:
             return None
         _, _, _, i, kind = max(cands)
         i = int(i)
+        eff = self.effectiveness
+        if kind == FAIL_TO_FIRE and eff is not None and eff.bound > 0.0 \
+                and eff.fraction[i] >= 1.0 - eff.bound:
+            # The thruster gives what the admitted thrust errors allow: the commanded evidence
+            # ran ahead of the learning (a first firing), not a fault.
+            return None
         group = tuple(j for j in self.groups[i] if avail[j])
         rho = float(self.rho_on[i] if kind == FAIL_TO_FIRE else self.rho_off[i])
         fraction = None

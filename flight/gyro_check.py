@@ -20,9 +20,11 @@ signatures no single thruster fault can produce are recognised:
 * **bias step**: the same unexplained jump followed by nothing (``|r(n+1)| < return_fraction
   |r(n)|``): the output moved, the dynamics did not. A stuck-on thruster repeats its jump tick
   after tick, so it is never a step;
-* **noise increase**: the mean square of ``r`` over quiet ticks (no thrust inside the tick),
+* **noise increase**: the mean square of the change of ``r`` between consecutive quiet ticks
+  (no thrust inside either; a steady residual such as a stuck thruster's cancels),
   forgotten with ``fast_forget``, exceeds ``noise_ratio`` times its long-run level (forgotten
-  with ``slow_forget``, frozen while the gyro is suspect) and the floor ``noise_floor_rad_s``
+  with ``slow_forget``, each sample capped at ``_SLOW_CAP`` times the level, frozen while the
+  gyro is suspect) and the floor ``noise_floor_rad_s``
   for ``noise_ticks`` ticks in a row.
 
 While a jump waits for its next tick, and while the output is frozen or noisy, the gyro is
@@ -40,6 +42,10 @@ from dataclasses import dataclass
 import numpy as np
 
 SPIKE, BIAS_STEP, FROZEN, NOISE = "spike", "bias_step", "frozen", "noise"
+# A quiet tick's square residual enters the long-run noise level capped at this many times it.
+_SLOW_CAP = 4.0
+# Of the last _BIG_WINDOW quiet differences, at least _BIG_COUNT above _BIG_RATIO times the level.
+_BIG_WINDOW, _BIG_COUNT, _BIG_RATIO = 6, 4, 9.0
 
 
 @dataclass(frozen=True)
@@ -69,7 +75,7 @@ class GyroCheck:
     def __init__(self, jump_rad_s: float, noise_floor_rad_s: float, *,
                  explain_factor: float = 1.5, return_fraction: float = 0.3,
                  noise_ratio: float = 25.0, fast_forget: float = 0.8,
-                 slow_forget: float = 0.99, noise_ticks: int = 3, warmup_ticks: int = 20,
+                 slow_forget: float = 0.995, noise_ticks: int = 5, warmup_ticks: int = 20,
                  start_ticks: int = 2) -> None:
         self.jump_rad_s = float(jump_rad_s)
         self.noise_floor2 = float(noise_floor_rad_s) ** 2
@@ -88,6 +94,8 @@ class GyroCheck:
         self._repeats = 0
         self._pending: np.ndarray | None = None
         self._chain = False
+        self._r_quiet: np.ndarray | None = None
+        self._big: list[bool] = []
         self._fast = 0.0
         self._slow = 0.0
         self._quiet = 0
@@ -159,14 +167,22 @@ class GyroCheck:
         # Noise level on quiet ticks.
         suspect = False
         fault = None
-        if thrust_abs == 0.0:
-            r2 = float(r @ r)
+        quiet_prev, self._r_quiet = self._r_quiet, (r.copy() if thrust_abs == 0.0 else None)
+        if thrust_abs == 0.0 and quiet_prev is not None:
+            # Differences of consecutive quiet residuals: a steady residual (a stuck thruster,
+            # an unmodelled torque) cancels, sensor noise does not (twice its variance).
+            dr = r - quiet_prev
+            r2 = float(dr @ dr)
             self._quiet += 1
             if self._quiet == 1:
                 self._fast = self._slow = r2
             self._fast = self.fast_forget * self._fast + (1.0 - self.fast_forget) * r2
             ref = max(self._slow, self.noise_floor2)
-            noisy = self._quiet > self.warmup_ticks and self._fast > self.noise_ratio * ref
+            # Noise is many large differences, a step (a thruster starting, a torque) one: the
+            # fast mean must be high and most of the last quiet differences large on their own.
+            self._big = (self._big + [r2 > _BIG_RATIO * ref])[-_BIG_WINDOW:]
+            noisy = (self._quiet > self.warmup_ticks and self._fast > self.noise_ratio * ref
+                     and sum(self._big) >= _BIG_COUNT)
             if noisy:
                 self._over += 1
                 suspect = True
@@ -174,7 +190,10 @@ class GyroCheck:
                     fault = self._report(NOISE)
             else:
                 self._over = 0
-                self._slow = self.slow_forget * self._slow + (1.0 - self.slow_forget) * r2
+                # Each sample counts at most _SLOW_CAP times the level (a robust mean): a
+                # noise increase must not drag the reference up before the fast mean shows it.
+                r2c = min(r2, _SLOW_CAP * max(self._slow, self.noise_floor2))
+                self._slow = self.slow_forget * self._slow + (1.0 - self.slow_forget) * r2c
         elif self._over > 0:
             suspect = True
         return GyroVerdict(suspect, False, False, False, fault, r)

@@ -115,7 +115,7 @@ class FlightSoftware:
         # Sensor check (flight.gyro_check): the jump level from the detector's dead zone, the
         # noise floor from the gyro's own specification (one-tick difference of three axes).
         jump = dc.gyro_jump_rad_s if dc.gyro_jump_rad_s is not None else 10.0 * dc.dead_zone_rad_s
-        self.gyro_check = GyroCheck(jump, math.sqrt(6.0) * vehicle.gyro.noise_std_rad_s)
+        self.gyro_check = GyroCheck(jump, math.sqrt(12.0) * vehicle.gyro.noise_std_rad_s)
         self._held: tuple | None = None
         self._w_prev: np.ndarray | None = None
         self.fdir = Fdir(fc.fdir, self.arrays.manifold_of, len(self.arrays.manifolds))
