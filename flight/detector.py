@@ -207,17 +207,16 @@ class Effectiveness:
     def update(self, residual_B_rad_s: np.ndarray, eff_s: np.ndarray, use: np.ndarray) -> None:
         """One tick: ``eff_s`` (N,) equivalent burn in the interval, ``use`` (N,) bool
         (available); ``residual`` measured minus predicted with the current ``k``."""
-        if self.bound <= 0.0:
-            return
         n = self.n
-        d = np.diag_indices(2 * n)
-        self.P[d] = np.minimum(np.diag(self.P) + self.q, self.p0)
-        e = np.clip(np.asarray(eff_s, dtype=float), 0.0, self.h)
+        # eff may be negative for an integrating gyro (the change of the mean burn): the thrust
+        # term is linear in it either way; the closed time is what is left of the tick.
+        e = np.asarray(eff_s, dtype=float)
+        closed = self.h - np.clip(e, 0.0, self.h)
         avail = np.asarray(use, dtype=bool)
-        burn = avail & (e > 0.0)
+        burn = avail & (e != 0.0)
         cols = np.concatenate([np.flatnonzero(burn), n + np.flatnonzero(avail)])
         H = np.concatenate([(self.mu * e[:, None])[burn],
-                            (self.mu * (self.h - e)[:, None])[avail]]).T
+                            (self.mu * closed[:, None])[avail]]).T
         r = np.asarray(residual_B_rad_s, dtype=float)
         k_used = self.k
         big = np.linalg.norm(self.mu, axis=1) * e >= 2.0 * math.sqrt(self.r_var)
@@ -226,6 +225,10 @@ class Effectiveness:
             hist = self._recent[j]
             hist.append(float(k_used[j] + phi @ r / (phi @ phi)))
             del hist[:-_FRACTION_TICKS]
+        if self.bound <= 0.0:
+            return  # learning off: only the measured fraction above
+        d = np.diag_indices(2 * n)
+        self.P[d] = np.minimum(np.diag(self.P) + self.q, self.p0)
         z = r + self.mu.T @ (k_used * e)
         nu = z - H @ self.x[cols]
         S = H @ self.P[np.ix_(cols, cols)] @ H.T + self.r_var * np.eye(3)
