@@ -109,6 +109,8 @@ class DetectedFault(IntEnum):
     NONE = 0
     STUCK_ON = 1
     FAIL_TO_FIRE = 2
+    DEGRADED = 3
+    GYRO_FAULT = 4  # a sensor fault: thruster_a / thruster_b are 63 (none)
 
 
 class NodeState(IntEnum):
@@ -404,7 +406,7 @@ CATALOG = Catalog(
             (Node.PLANT, Node.PANEL),
             (
                 _sig("detect_tick", 12, 24, **{**_tick, "comment": "tick of the detection"}),
-                _sig("fault_type", 36, 3, maximum=2, choices=_enum_choices(DetectedFault)),
+                _sig("fault_type", 36, 3, maximum=4, choices=_enum_choices(DetectedFault)),
                 _sig("thruster_a", 39, 6, comment="detected thruster index, 63 = none"),
                 _sig(
                     "thruster_b",

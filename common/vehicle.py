@@ -93,10 +93,18 @@ class CmgCfg(_Model):
 
 
 class DisturbanceCfg(_Model):
-    """External disturbance torque: constant part plus seeded white noise (per axis, 1-sigma)."""
+    """External disturbance torque: constant part plus a seeded random part (per axis, 1-sigma).
+
+    The random part is held constant over intervals of ``random_torque_hold_s`` on the global
+    time grid (a fresh N(0, std^2) per interval), independent of the plant's integration step:
+    the rate of a free body diffuses as ``std^2 hold t / I^2`` whatever ``step_s`` is.
+    """
 
     constant_torque_B_Nm: Vec3 = (0.0, 0.0, 0.0)
     random_torque_std_Nm: NonNegFloat = 0.0
+    # chosen: 10 ms, the plant's default step, so a vehicle's figure keeps the statistics it was
+    # set with (before, the torque was drawn per integration step)
+    random_torque_hold_s: PosFloat = 0.01
 
 
 class ModeShapeCfg(_Model):
@@ -205,6 +213,23 @@ class DetectorCfg(_Model):
     # Two thrusters whose unit acceleration vectors differ by less than this angle are reported
     # as a group (seed 003's stated limit of the method).
     same_direction_deg: NonNegFloat = 2.0
+    # Online effectiveness of each thruster (flight.detector.Effectiveness): what the onboard
+    # model uses is bounded to 1 +/- effectiveness_bound (0 turns the learning off).
+    # chosen: docs/design.md 10 admits +/-15 % thrust errors; 0.2 learns them with a margin.
+    effectiveness_bound: float = Field(default=0.2, ge=0.0, lt=1.0)
+    # A commanded-evidence detection whose estimated thrust fraction is at least this is
+    # "degraded" (with the fraction), below it "fails to fire". chosen: halfway between a
+    # thruster that gives nothing and the smallest degradation worth reporting (30 %).
+    fail_fraction: float = Field(default=0.15, ge=0.0, le=1.0)
+    # Ticks the detector skips after an FDIR response before its evidence restarts on the new
+    # configuration (a closed manifold's thrust decay, the arrays ringing from the stuck burn,
+    # the re-initialised observer converging). chosen: 15 (3 s at 0.2 s), measured on orel,
+    # stuck on 100 % in holds, 16 runs, a second detection after a correct first one:
+    # 2 ticks 10 of 14, 5 ticks 10 of 14, 10 ticks 3 of 14, 15 ticks 0 of 14.
+    response_hold_ticks: int = Field(default=15, ge=0)
+    # A one-tick rate jump above this, unexplained by the thrust of the tick, is a gyro error
+    # candidate (flight.gyro_check); None: 10 x dead_zone_rad_s.
+    gyro_jump_rad_s: PosFloat | None = None
 
 
 class KalmanCfg(_Model):

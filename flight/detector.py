@@ -47,6 +47,8 @@ from common.vehicle import DetectorCfg
 
 STUCK_ON = "stuck_on"
 FAIL_TO_FIRE = "fail_to_fire"
+DEGRADED = "degraded"
+GYRO_FAULT = "gyro_fault"
 
 
 @dataclass(frozen=True)
@@ -55,8 +57,10 @@ class Detection:
 
     ``thruster`` the index whose residual crossed; ``group`` every thruster with the same
     direction (indices, sorted, includes ``thruster``); ``kind`` ``stuck_on`` or
-    ``fail_to_fire``; ``rho`` the residual value at the crossing; ``source`` ``residual``
-    (seed 000/003) or ``kalman`` (seed 002 leak test).
+    ``fail_to_fire``, ``degraded`` or ``gyro_fault`` (a sensor fault: ``thruster`` is -1, the
+    group empty, ``names`` the fault's kind, ``flight.gyro_check``); ``rho`` the residual value
+    at the crossing; ``source`` ``residual`` (seed 000/003), ``kalman`` (seed 002 leak test) or
+    ``gyro``; ``fraction`` the estimated thrust fraction of a degraded (or failed) thruster.
     """
 
     tick: int
@@ -66,12 +70,15 @@ class Detection:
     names: tuple[str, ...]
     rho: float
     source: str = "residual"
+    fraction: float | None = None
 
     @property
     def ambiguous(self) -> bool:
         return len(self.group) > 1
 
     def describe(self) -> str:
+        if self.kind == GYRO_FAULT:
+            return f"gyro fault ({self.names[0] if self.names else 'unknown'})"
         who = self.names[0] if len(self.names) == 1 else "one of {" + ", ".join(self.names) + "}"
         return f"{who} {self.kind}"
 
@@ -111,6 +118,148 @@ def opposite_matrix(e_B: np.ndarray, opposite_deg: float) -> np.ndarray:
     return (e_B @ e_B.T) <= -(cos_tol - 1e-12)
 
 
+# Ticks of a thruster's own burns the reported thrust fraction is the mean of.
+_FRACTION_TICKS = 3
+
+
+# Normalised innovation (chi^2, 3 degrees of freedom) above which the effectiveness estimate of
+# the burning thrusters restarts from its prior variance: 25 is ~1e-5 for a consistent filter.
+_CHI2_RESET = 25.0
+
+
+class Effectiveness:
+    """Online, bounded effectiveness of each thruster (seed 003 identifies an influence
+    coefficient; this is the same idea per thruster).
+
+    The onboard model predicts the thrusters' rate change as ``sum_j k_j mu_j eff_j``. On every
+    tick, ``z = r + sum_j k_j mu_j eff_j`` (the residual ``r`` plus what was predicted) is a
+    measurement of::
+
+        z = sum_j theta_j mu_j eff_j + sum_j lambda_j mu_j (h - eff_j)
+
+    ``theta_j`` the thruster's actual thrust over nominal while it burns, ``lambda_j`` its
+    leak (thrust fraction while the valve is meant to be closed). Both are estimated by one
+    Kalman filter (random walks, prior variances ``p0`` and ``p0_leak``, process variances
+    ``q`` and ``q_leak`` per tick, measurement variance ``r_var`` per axis). The leak terms are
+    what keeps the effectiveness clean: a lit thruster 15 % weak and its opposite leaking 15 %
+    look alike on the ticks the first fires (seed 002 uses only ticks with no command for a
+    leak), and only the ticks where neither fires tell them apart; with both in the model the
+    filter puts the residual where the timing says it belongs. The leak is not fed back (a
+    leak is a fault: its evidence stays in the residual for the detector).
+
+    What the model uses is ``k = clip(theta, 1 - bound, 1 + bound)``: thrust errors of the
+    size the vehicle admits (DESIGN 10: +/-15 %) are learnt and stop reading as faults, while
+    a thruster that fails to fire or is degraded below the bound leaves the rest of its error
+    in the residual, so the commanded evidence judges it against the learnt effectiveness.
+    ``fraction`` is reported with a degraded detection. An innovation beyond the random walk
+    (chi^2 above ``_CHI2_RESET``) restarts the variance of the burning thrusters' ``theta``
+    and of every leak, so a new thrust is estimated within a few ticks.
+
+    ``trust()`` keeps a copy of the estimate while the detector's evidence is quiet; after a
+    response ``restore()`` goes back to it, so what the fault pushed does not carry into the
+    new configuration.
+    """
+
+    def __init__(self, mu_B_rad_s2: np.ndarray, bound: float, r_var: float, tick_s: float,
+                 p0: float = 0.04, q: float = 1e-4, p0_leak: float = 0.01,
+                 q_leak: float = 1e-6) -> None:
+        self.mu = np.asarray(mu_B_rad_s2, dtype=float)
+        n = len(self.mu)
+        self.n = n
+        self.h = float(tick_s)
+        self.bound = float(bound)
+        self.r_var = float(r_var)
+        self.p0 = np.concatenate([np.full(n, p0), np.full(n, p0_leak)])
+        self.q = np.concatenate([np.full(n, q), np.full(n, q_leak)])
+        self.x = np.concatenate([np.ones(n), np.zeros(n)])
+        self.P = np.diag(self.p0)
+        self._trusted = (self.x.copy(), self.P.copy())
+        self._recent: list[list[float]] = [[] for _ in range(n)]
+
+    @property
+    def theta(self) -> np.ndarray:
+        return self.x[: self.n]
+
+    @property
+    def leak(self) -> np.ndarray:
+        return self.x[self.n:]
+
+    @property
+    def k(self) -> np.ndarray:
+        """(N,) effectiveness the onboard model uses (bounded)."""
+        if self.bound <= 0.0:
+            return np.ones(self.n)
+        return np.clip(self.theta, 1.0 - self.bound, 1.0 + self.bound)
+
+    @property
+    def fraction(self) -> np.ndarray:
+        """(N,) thrust over nominal each thruster showed on its last ``_FRACTION_TICKS``
+        ticks with a burn worth twice the residual noise (else ``theta``), every other
+        thruster taken as predicted: ``k_j + (mu_j eff_j) . r / |mu_j eff_j|^2``, in
+        [0, 1.5]. It answers "what is left of this thruster's thrust" once the commanded
+        evidence named it, which the joint estimate cannot yet tell from an opposite thruster
+        leaking so soon after the fault."""
+        out = self.theta.copy()
+        for j, hist in enumerate(self._recent):
+            if hist:
+                out[j] = float(np.mean(hist))
+        return np.clip(out, 0.0, 1.5)
+
+    def update(self, residual_B_rad_s: np.ndarray, eff_s: np.ndarray, use: np.ndarray) -> None:
+        """One tick: ``eff_s`` (N,) equivalent burn in the interval, ``use`` (N,) bool
+        (available); ``residual`` measured minus predicted with the current ``k``."""
+        n = self.n
+        # eff may be negative for an integrating gyro (the change of the mean burn): the thrust
+        # term is linear in it either way; the closed time is what is left of the tick.
+        e = np.asarray(eff_s, dtype=float)
+        closed = self.h - np.clip(e, 0.0, self.h)
+        avail = np.asarray(use, dtype=bool)
+        burn = avail & (e != 0.0)
+        cols = np.concatenate([np.flatnonzero(burn), n + np.flatnonzero(avail)])
+        H = np.concatenate([(self.mu * e[:, None])[burn],
+                            (self.mu * closed[:, None])[avail]]).T
+        r = np.asarray(residual_B_rad_s, dtype=float)
+        k_used = self.k
+        big = np.linalg.norm(self.mu, axis=1) * e >= 2.0 * math.sqrt(self.r_var)
+        for j in np.flatnonzero(burn & big):
+            phi = self.mu[j] * e[j]
+            hist = self._recent[j]
+            hist.append(float(k_used[j] + phi @ r / (phi @ phi)))
+            del hist[:-_FRACTION_TICKS]
+        if self.bound <= 0.0:
+            return  # learning off: only the measured fraction above
+        d = np.diag_indices(2 * n)
+        self.P[d] = np.minimum(np.diag(self.P) + self.q, self.p0)
+        z = r + self.mu.T @ (k_used * e)
+        nu = z - H @ self.x[cols]
+        S = H @ self.P[np.ix_(cols, cols)] @ H.T + self.r_var * np.eye(3)
+        S_inv = np.linalg.inv(S)
+        if float(nu @ S_inv @ nu) > _CHI2_RESET:
+            # The thrust changed beyond the random walk (a fault, a first firing far from
+            # nominal): the burning thrusters' theta and every leak restart from the prior.
+            reset = np.concatenate([np.flatnonzero(burn), n + np.arange(n)])
+            self.P[reset, :] = 0.0
+            self.P[:, reset] = 0.0
+            self.P[reset, reset] = self.p0[reset]
+            S = H @ self.P[np.ix_(cols, cols)] @ H.T + self.r_var * np.eye(3)
+            S_inv = np.linalg.inv(S)
+        Pc = self.P[:, cols]                                     # (2N, C)
+        K = Pc @ H.T @ S_inv                                     # (2N, 3)
+        self.x = self.x + K @ nu
+        self.P = self.P - K @ (H @ Pc.T)
+        self.P = 0.5 * (self.P + self.P.T)
+        # A leak is thrust of a closed valve: never negative. Without this, an opposite pair
+        # "both leaking and both weaker" is the same data as neither (the leaks cancel).
+        np.clip(self.x[n:], 0.0, None, out=self.x[n:])
+
+    def trust(self) -> None:
+        self._trusted = (self.x.copy(), self.P.copy())
+
+    def restore(self) -> None:
+        """After a response: back to the last trusted estimate."""
+        self.x, self.P = self._trusted[0].copy(), self._trusted[1].copy()
+
+
 class Detector:
     """Seed 000 / seed 003 detector over N thrusters.
 
@@ -121,8 +270,9 @@ class Detector:
 
     def __init__(self, mu_B_rad_s2: np.ndarray, cfg: DetectorCfg,
                  names: tuple[str, ...] | None = None, opposite_deg: float | None = None,
-                 hold_ticks: int = 2) -> None:
+                 hold_ticks: int = 2, effectiveness: Effectiveness | None = None) -> None:
         self.cfg = cfg
+        self.effectiveness = effectiveness
         self.e_B = unit_directions(mu_B_rad_s2)
         n = len(self.e_B)
         self.names = tuple(names) if names else tuple(str(i) for i in range(n))
@@ -162,6 +312,16 @@ class Detector:
             return np.zeros(self.n), norm, True
         return self.e_B @ (dw / norm), norm, False
 
+    def skip(self, dw_B_rad_s: np.ndarray) -> DetectorOutput:
+        """A tick kept out of the evidence (gyro suspect): residuals unchanged, no decision."""
+        norm = float(np.linalg.norm(np.asarray(dw_B_rad_s, dtype=float)))
+        return self._out(np.zeros(self.n), norm, True, None, held=True)
+
+    def quiet(self) -> bool:
+        """Every residual below half its threshold (the evidence holds no suspicion)."""
+        return bool(np.all(np.abs(self.rho_on) < 0.5 * self.thresholds_on)
+                    and np.all(np.abs(self.rho_off) < 0.5 * self.thresholds_off))
+
     def step(self, tick: int, dw_B_rad_s: np.ndarray, active: np.ndarray,
              available: np.ndarray | None = None,
              commanded_abs_rad_s: float = 0.0) -> DetectorOutput:
@@ -194,10 +354,22 @@ class Detector:
             return None
         _, _, _, i, kind = max(cands)
         i = int(i)
+        eff = self.effectiveness
+        if kind == FAIL_TO_FIRE and eff is not None and eff.bound > 0.0 \
+                and eff.fraction[i] >= 1.0 - eff.bound:
+            # The thruster gives what the admitted thrust errors allow: the commanded evidence
+            # ran ahead of the learning (a first firing), not a fault.
+            return None
         group = tuple(j for j in self.groups[i] if avail[j])
         rho = float(self.rho_on[i] if kind == FAIL_TO_FIRE else self.rho_off[i])
+        fraction = None
+        if kind == FAIL_TO_FIRE and self.effectiveness is not None:
+            # Commanded evidence against the learnt effectiveness: what is left of the thrust.
+            fraction = float(self.effectiveness.fraction[i])
+            if fraction >= self.cfg.fail_fraction:
+                kind = DEGRADED
         return Detection(tick=tick, thruster=i, kind=kind, group=group,
-                         names=tuple(self.names[j] for j in group), rho=rho)
+                         names=tuple(self.names[j] for j in group), rho=rho, fraction=fraction)
 
     def _out(self, xi: np.ndarray, norm: float, dz: bool, det: Detection | None,
              held: bool) -> DetectorOutput:

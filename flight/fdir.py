@@ -3,7 +3,8 @@
 States: ``nominal`` (no fault), ``reconfigured`` (a thruster or manifold taken out, detection
 re-armed), ``reported`` (fault reported, response ``none``: the detector stays latched, single
 fault assumption), ``safe`` (all valves commanded closed: lost peer, or nothing left to control
-with). Events: the detector's kinds ``stuck_on``, ``fail_to_fire``, ``degraded``, and
+with). Events: the detector's kinds ``stuck_on``, ``fail_to_fire``, ``degraded``, the gyro
+check's ``gyro_fault`` (reported, no thruster action), and
 ``peer_lost`` / ``peer_back`` from the process shell.
 
 The table ``(state, event) -> (next state, action)`` is built once from the vehicle's
@@ -35,7 +36,7 @@ from flight.detector import Detection
 
 NOMINAL, RECONFIGURED, REPORTED, SAFE = "nominal", "reconfigured", "reported", "safe"
 STATES = (NOMINAL, RECONFIGURED, REPORTED, SAFE)
-FAULT_EVENTS = ("stuck_on", "fail_to_fire", "degraded")
+FAULT_EVENTS = ("stuck_on", "fail_to_fire", "degraded", "gyro_fault")
 ACTIONS = ("close_manifold", "drop_thruster", "none", "all_off", "resume")
 
 # (state, event) -> (next state, action). "cfg:<key>" takes the action from FdirCfg.<key>;
@@ -51,6 +52,10 @@ TRANSITIONS: dict[tuple[str, str], tuple[str, str]] = {
     (RECONFIGURED, "peer_lost"): (SAFE, "all_off"),
     (REPORTED, "peer_lost"): (SAFE, "all_off"),
     (SAFE, "peer_back"): (NOMINAL, "resume"),
+    # A sensor fault (flight.gyro_check) is reported; no thruster is taken out for it.
+    (NOMINAL, "gyro_fault"): (NOMINAL, "none"),
+    (RECONFIGURED, "gyro_fault"): (RECONFIGURED, "none"),
+    (REPORTED, "gyro_fault"): (REPORTED, "none"),
 }
 
 

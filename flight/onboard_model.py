@@ -62,7 +62,11 @@ class Prediction:
     ``dw_thr_abs_rad_s``: sum of the thrusters' rate-change magnitudes ``sum_j |mu_j| eff_j``
     (the scale of the detector's relative dead zone); ``dangle_thr_B_rad`` (3,): the
     thrusters' share of the attitude increment over the interval (used by the Kalman filter,
-    seed 002).
+    seed 002); ``eff_s`` (N,): the equivalent burn that multiplies ``mu_j`` in the sample's
+    prediction (``burn_s`` for a rate gyro; the change of the mean burn for an integrating one),
+    before the effectiveness scale; ``lead_s`` (3,): per channel, the time from the centroid of
+    the thrusters' burns in the interval to its end, weighted by each one's share ``|mu_j,c|
+    burn_j`` (the observer's input timing; 0 where nothing burns).
     """
 
     omega_calc_B_rad_s: np.ndarray
@@ -72,6 +76,8 @@ class Prediction:
     dangle_thr_B_rad: np.ndarray
     burning: np.ndarray
     dw_thr_abs_rad_s: float = 0.0
+    eff_s: np.ndarray | None = None
+    lead_s: np.ndarray | None = None
 
 
 class BurnTimeline:
@@ -190,7 +196,11 @@ class OnboardModel:
         return dw
 
     def predict(self, omega_B_rad_s: np.ndarray, tau_cmd_s: np.ndarray,
-                vertical_B: np.ndarray | None = None, t_s: float = 0.0) -> Prediction:
+                vertical_B: np.ndarray | None = None, t_s: float = 0.0,
+                scale: np.ndarray | None = None) -> Prediction:
+        """``scale`` (N,), optional: the learnt effectiveness of each thruster (its thrust over
+        nominal, ``flight.detector.Effectiveness``); the thrusters' share is
+        ``sum_j scale_j mu_j eff_j``."""
         burn, angle = self.timeline.advance(tau_cmd_s)
         if self.predict_from == "model":
             if self.omega_model_B_rad_s is None:
@@ -204,7 +214,12 @@ class OnboardModel:
             eff = self._prev_burn + (angle - self._prev_angle) / self.h
         else:
             eff = burn
-        dw_thr = self.mu_B_rad_s2.T @ eff
+        k = np.ones(len(eff)) if scale is None else np.asarray(scale, dtype=float)
+        dw_thr = self.mu_B_rad_s2.T @ (k * eff)
+        # angle_j = int (h - t) dt over the burn, so angle_j / burn_j is its lead to the sample.
+        w_abs = np.abs(self.mu_B_rad_s2).T
+        den = w_abs @ (k * burn)
+        lead = np.where(den > 0.0, (w_abs @ (k * angle)) / np.where(den > 0.0, den, 1.0), 0.0)
         omega_calc = base + self.free_increment(base, vertical_B, t_s) + dw_thr
         if self.predict_from == "model":
             self.omega_model_B_rad_s = omega_calc.copy()
@@ -214,7 +229,9 @@ class OnboardModel:
             dw_thr_B_rad_s=dw_thr,
             burn_s=burn,
             active=np.asarray(tau_cmd_s, dtype=float) > 0.0,
-            dangle_thr_B_rad=self.mu_B_rad_s2.T @ angle,
+            dangle_thr_B_rad=self.mu_B_rad_s2.T @ (k * angle),
             burning=eff > 0.0,
-            dw_thr_abs_rad_s=float(np.linalg.norm(self.mu_B_rad_s2, axis=1) @ np.abs(eff)),
+            dw_thr_abs_rad_s=float(np.linalg.norm(self.mu_B_rad_s2, axis=1) @ np.abs(k * eff)),
+            eff_s=eff,
+            lead_s=lead,
         )

@@ -22,6 +22,7 @@ made at the end of tick n from the observer's estimate and those commands.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,8 +32,9 @@ from common.vehicle import VehicleArrays, VehicleCfg
 from flight.allocator import Allocation, Allocator
 from flight.attitude import AttitudeEstimate, q_rotate_inv
 from flight.controller import Controller, RateDemand
-from flight.detector import STUCK_ON, Detection, Detector
+from flight.detector import GYRO_FAULT, STUCK_ON, Detection, Detector, Effectiveness
 from flight.fdir import Fdir
+from flight.gyro_check import GyroCheck
 from flight.kalman import DisturbanceKalman
 from flight.observer import AdaptiveObserver, ObserverOutput
 from flight.onboard_model import OnboardModel, Prediction
@@ -104,7 +106,19 @@ class FlightSoftware:
         self.target_TO = _quat(target)
         self.model = OnboardModel(vehicle)
         self.observer = AdaptiveObserver(fc.observer, self.h)
-        self.detector = Detector(self.arrays.mu_B_rad_s2, fc.detector, self.arrays.names)
+        dc = fc.detector
+        # Measurement variance: the residual the detector treats as noise (its dead zone).
+        self.effectiveness = Effectiveness(self.arrays.mu_B_rad_s2, dc.effectiveness_bound,
+                                           dc.dead_zone_rad_s**2, self.h)
+        self.detector = Detector(self.arrays.mu_B_rad_s2, dc, self.arrays.names,
+                                 hold_ticks=dc.response_hold_ticks,
+                                 effectiveness=self.effectiveness)
+        # Sensor check (flight.gyro_check): the jump level from the detector's dead zone, the
+        # noise floor from the gyro's own specification (one-tick difference of three axes).
+        jump = dc.gyro_jump_rad_s if dc.gyro_jump_rad_s is not None else 10.0 * dc.dead_zone_rad_s
+        self.gyro_check = GyroCheck(jump, math.sqrt(12.0) * vehicle.gyro.noise_std_rad_s)
+        self._held: tuple | None = None
+        self._w_prev: np.ndarray | None = None
         self.fdir = Fdir(fc.fdir, self.arrays.manifold_of, len(self.arrays.manifolds))
         self.kalman = (DisturbanceKalman(fc.kalman, self.h, self.detector.e_B)
                        if fc.kalman.enabled else None)
@@ -140,8 +154,12 @@ class FlightSoftware:
 
     def stage_observer(self) -> None:
         """Observer update with the last tick's model increments; attitude propagation."""
-        u = self._pred.dw_thr_B_rad_s if self._pred is not None else np.zeros(3)
-        self._obs: ObserverOutput = self.observer.update(self._y, self._free, u)
+        pred = self._pred
+        u = pred.dw_thr_B_rad_s if pred is not None else np.zeros(3)
+        lead = None
+        if pred is not None and self.model.sample_kind == "instant":
+            lead = pred.lead_s  # time from the burns' centroid to this sample, per channel
+        self._obs: ObserverOutput = self.observer.update(self._y, self._free, u, lead)
         if self._pred is None:
             self.model.resync(self._obs.omega_hat_B_rad_s)
         # Strapdown attitude from the measured rate (the integrating gyro's mean rate times h is
@@ -154,24 +172,48 @@ class FlightSoftware:
         self._phi_meas = self._phi_meas + self._y * self.h
 
     def stage_detector(self) -> None:
-        """Residual, integral residuals, Kalman leak test, FDIR response."""
+        """Gyro check, residual, integral residuals, effectiveness, Kalman leak test, FDIR."""
         w_hat = self._obs.omega_hat_B_rad_s
         pred = self._pred
+        avail = self.fdir.available
         if pred is None:
             self._omega_pred = w_hat.copy()
+            self.gyro_check.step(self._y, np.zeros(3), 0.0)
             self._det_out = self.detector.step(self._tick, np.zeros(3), np.zeros(self.n, bool),
-                                               self.fdir.available)
+                                               avail)
             # The first tick carries no residual: do not let it age the residuals.
+            det = None
         else:
             self._omega_pred = pred.omega_calc_B_rad_s
-            self._det_out = self.detector.step(self._tick, w_hat - self._omega_pred, pred.active,
-                                               self.fdir.available, pred.dw_thr_abs_rad_s)
-        det = self._det_out.detection
+            change = pred.omega_calc_B_rad_s - self._w_prev
+            verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s)
+            dw = w_hat - self._omega_pred
+            det = None
+            if verdict.fault is not None:
+                det = Detection(tick=self._tick, thruster=-1, kind=GYRO_FAULT, group=(),
+                                names=(verdict.fault,), rho=float(np.linalg.norm(
+                                    verdict.residual)), source="gyro")
+            if verdict.resync:
+                self._resync_on_gyro()
+            held, self._held = self._held, None
+            if held is not None and not verdict.drop_previous:
+                # A held jump the next tick showed to be dynamics: commit it first.
+                d_held = self._commit(*held)
+                det = det or d_held
+            if verdict.hold:
+                self._held = (self._tick, dw, pred, avail, self._obs.innovation_B_rad_s)
+                self._det_out = self.detector.skip(dw)
+            elif verdict.suspect:
+                self._det_out = self.detector.skip(dw)
+            else:
+                d_now = self._commit(self._tick, dw, pred, avail, self._obs.innovation_B_rad_s)
+                det = det or d_now
+        self._w_prev = w_hat.copy()
         if self.kalman is not None and pred is not None:
-            burn_dw = self.arrays.mu_B_rad_s2.T @ pred.burn_s
+            burn_dw = self.arrays.mu_B_rad_s2.T @ (self.effectiveness.k * pred.burn_s)
             on_axis = np.abs(self.detector.e_B[pred.burning]).max(axis=0, initial=0.0) > 0.1
             self.kalman.update(self._phi_meas, burn_dw, pred.dangle_thr_B_rad, ~on_axis)
-            if det is None and self.detector.latched is None:
+            if det is None and self.detector.latched is None and not self._gyro_suspect():
                 leak = self.kalman.leak_test(self.fdir.available)
                 if leak is not None:
                     i = leak.thruster
@@ -180,11 +222,36 @@ class FlightSoftware:
                                     names=tuple(self.arrays.names[j] for j in group),
                                     rho=leak.projection_rad_s2, source="kalman")
                     self.detector.latched = det
+        self._det = det
         if det is not None:
-            self._det = det
             resp = self.fdir.handle(det.kind, det)
             if resp.rebaseline:
                 self.rebaseline()
+
+    def _commit(self, tick: int, dw: np.ndarray, pred: Prediction, avail: np.ndarray,
+                eps: np.ndarray) -> Detection | None:
+        """Feed one tick's residual to the detector and the observer's innovation ``eps`` (the
+        error before the observer's correction: the adaptive observer's residual is only W5 of
+        it on switching ticks) to the effectiveness learning."""
+        out = self.detector.step(tick, dw, pred.active, avail, pred.dw_thr_abs_rad_s)
+        if tick == self._tick:
+            self._det_out = out
+        if out.detection is None and not out.held and pred.eff_s is not None:
+            self.effectiveness.update(eps, pred.eff_s, avail)
+            if self.detector.quiet():
+                self.effectiveness.trust()
+        return out.detection
+
+    def _gyro_suspect(self) -> bool:
+        return self._held is not None or self.gyro_check.suspect
+
+    def _resync_on_gyro(self) -> None:
+        """The output jumped without the dynamics: estimators restart on the new output."""
+        self.observer.resync(self._y)
+        self._obs = self.observer._out(self._obs.innovation_B_rad_s, self._obs.switching)
+        self.model.resync(self._obs.omega_hat_B_rad_s)
+        if self.kalman is not None:
+            self.kalman.reset(self._phi_meas, self._obs.omega_hat_B_rad_s)
 
     def stage_controller(self) -> None:
         """Seed 004 phase plane (or seed 002 s-law) on the estimated attitude and rigid rate."""
@@ -236,7 +303,8 @@ class FlightSoftware:
         j_B = q_rotate_inv(self.attitude.Lambda_BO, _Y_ORBIT)
         t_s = self._tick * self.h
         self._free = self.model.free_increment(w_hat, j_B, t_s)
-        self._pred = self.model.predict(w_hat, self._on_ms / 1000.0, j_B, t_s)
+        self._pred = self.model.predict(w_hat, self._on_ms / 1000.0, j_B, t_s,
+                                        scale=self.effectiveness.k)
 
     def finish(self) -> TickOutput:
         """Assemble the tick's output (after every stage ran)."""
@@ -265,6 +333,15 @@ class FlightSoftware:
     def rebaseline(self) -> None:
         """After an FDIR reconfiguration: restart the residuals and the model's own state."""
         self.detector.rebaseline()
+        self._held = None
+        self.gyro_check.forget_pending()
+        # The evidence restarts on the new configuration: effectiveness back to its last
+        # trusted value (healthy thrusters fought the fault), and the observer's flex state,
+        # frequency and influence re-initialised (a stuck thruster's thrust was taken in as
+        # "flex" and dragged the frequency to the band's edge).
+        self.effectiveness.restore()
+        if self.observer.kind == "adaptive":
+            self.observer.reset(self._obs.omega_hat_B_rad_s)
         self.model.resync(self._obs.omega_hat_B_rad_s)
         if self.kalman is not None:
             self.kalman.reset(self._phi_meas, self._obs.omega_hat_B_rad_s)

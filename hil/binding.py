@@ -44,7 +44,8 @@ FAULT_KIND_TO_BUS = {name: kind for kind, name in FAULT_KIND_FROM_BUS.items()}
 # A panel-injected gyro fault's magnitude (FAULT_CMD carries none), rad/s.
 PANEL_GYRO_MAGNITUDE_RAD_S = 1e-3
 
-_DETECTED = {"stuck_on": DetectedFault.STUCK_ON, "fail_to_fire": DetectedFault.FAIL_TO_FIRE}
+_DETECTED = {"stuck_on": DetectedFault.STUCK_ON, "fail_to_fire": DetectedFault.FAIL_TO_FIRE,
+             "degraded": DetectedFault.DEGRADED, "gyro_fault": DetectedFault.GYRO_FAULT}
 
 
 def over_the_wire(msg: Message) -> Message:

@@ -39,10 +39,12 @@ class DetectionRecord(TypedDict):
 
     t_s: float
     tick: int
-    thruster: str | list[str]
+    thruster: str | list[str] | None  # None: a gyro fault (no thruster named)
     type: str
     source: str
     rho: float
+    fraction: NotRequired[float]  # degraded: the estimated thrust fraction
+    gyro: NotRequired[str]  # gyro_fault: which error (spike, bias step, frozen, noise)
 
 
 class TruthFields(TypedDict):
@@ -109,9 +111,15 @@ def detection_record(det, tick: int, tick_s: float,
                      thruster_names: Sequence[str]) -> DetectionRecord:
     """The record of a ``flight.detector.Detection`` raised at ``tick``."""
     names = [thruster_names[i] for i in det.group]
-    return {"t_s": round(tick * tick_s, 6), "tick": tick,
-            "thruster": names[0] if len(names) == 1 else names,
-            "type": det.kind, "source": det.source, "rho": float(det.rho)}
+    rec: DetectionRecord = {
+        "t_s": round(tick * tick_s, 6), "tick": tick,
+        "thruster": (names[0] if len(names) == 1 else names) if names else None,
+        "type": det.kind, "source": det.source, "rho": float(det.rho)}
+    if getattr(det, "fraction", None) is not None:  # degraded: the estimated thrust fraction
+        rec["fraction"] = round(float(det.fraction), 4)
+    if det.kind == "gyro_fault":  # a sensor fault: which gyro error, no thruster
+        rec["gyro"] = det.names[0]
+    return rec
 
 
 def newly_active_faults(entries: Iterable[Any], reported: set[int],

@@ -52,6 +52,12 @@ def match_detections(
     for d in detections:
         best = None
         for k, f in enumerate(faults):
+            if d["type"] == "gyro_fault":
+                # A sensor fault detection names no thruster: it matches an active gyro fault.
+                if str(f.get("type", "")).startswith("gyro_") and f["t_s"] <= d["t_s"] + 1e-9:
+                    best = k
+                    break
+                continue
             if f.get("thruster") is None or f["t_s"] > d["t_s"] + 1e-9:
                 continue
             # Cleared before the detection: not the fault detected. A detection at the clear

@@ -202,6 +202,12 @@ class Plant:
         self._dist_const_l = self._dist_const.tolist()
         self._zero_modes = [0.0] * len(vehicle.flex_modes)
         self._dist_std = float(dist.random_torque_std_Nm)
+        # Random torque: piecewise constant over the global grid k * hold (DisturbanceCfg), a
+        # fresh N(0, std^2) per axis per interval, drawn in time order; a step's torque is the
+        # exact mean over the intervals it overlaps, so the statistics do not depend on step_s.
+        self._dist_hold_s = float(dist.random_torque_hold_s)
+        self._dist_k = -1
+        self._dist_val = [0.0, 0.0, 0.0]
 
         self.t = 0.0
         self._events: list[tuple[float, int, int, int, int, list[bool]]] = []
@@ -426,6 +432,25 @@ class Plant:
         k1 = math.ceil(t1 / h - 1e-6) - 1
         return [t0, *[k * h for k in range(k0, k1 + 1)], t1]
 
+    def _random_torque_mean(self, a: float, b: float) -> list[float]:
+        """Mean of the held random torque over ``[a, b]`` (3 floats); draws the intervals up to
+        ``b`` in order (the grid ``k * hold`` is global: same torque history for any step)."""
+        T = self._dist_hold_s
+        acc = [0.0, 0.0, 0.0]
+        t = a
+        while b - t > _EPS_S:
+            k = int(math.floor(t / T + 1e-9))
+            while self._dist_k < k:
+                self._dist_k += 1
+                self._dist_val = (self._rng_dist.standard_normal(3) * self._dist_std).tolist()
+            end = min(b, (k + 1) * T)
+            w = end - t
+            v = self._dist_val
+            acc = [acc[0] + v[0] * w, acc[1] + v[1] * w, acc[2] + v[2] * w]
+            t = end
+        d = b - a
+        return [x / d for x in acc] if d > 0 else acc
+
     def _integrate_chunk(self, t0: float, t1: float) -> None:
         """Integrate ``[t0, t1]`` (no event inside) on the step grid: the exact mean thrust of
         every step from one vectorised call, then the sequential part with the state in local
@@ -450,8 +475,8 @@ class Plant:
             force_l = mean[:, 0:3].tolist()
             flex_l = mean[:, 6:].tolist()
         if self._dist_std > 0:
-            noise = self._rng_dist.standard_normal((n_steps, 3)) * self._dist_std
-            torque_l = (np.array(torque_l) + noise).tolist()
+            noise = [self._random_torque_mean(grid_l[k], grid_l[k + 1]) for k in range(n_steps)]
+            torque_l = (np.array(torque_l) + np.array(noise)).tolist()
         body, flex = self.body, self.flex
         fq, fqd = flex.q, flex.qd
         if flex.n:

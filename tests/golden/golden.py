@@ -3,7 +3,9 @@
 and the flight's outputs per tick, plus the detections in full.
 
 The reference files ``tests/golden/<scenario>.json`` were written on the commit before the
-architecture restructuring; ``test_golden.py`` re-runs the scenarios and compares bit for bit.
+architecture restructuring (which left every one unchanged) and written again, on purpose,
+when the FDIR envelope work changed the detector, the observer and the plant's random torque;
+``test_golden.py`` re-runs the scenarios and compares bit for bit.
 A change that is meant to change the numbers regenerates them on purpose::
 
     .venv/bin/python -m tests.golden.golden            # every scenario

@@ -341,9 +341,14 @@ def test_realtime_stale_and_out_of_order_commands_are_dropped_and_counted(tmp_pa
     recs = [r for r in read_jsonl(out / "plant.jsonl") if not r.get("final")]
     events = [(r["t_s"], e) for r in recs for e in r["events"]]
     gate = recs[-1]["command_gate"]
-    assert gate["stale"] == 1 and gate["out_of_order"] == 1, (gate, log, events)
-    assert gate["fresh"] == sum(1 for w, _ in log if w == "fresh")
-    assert any("dropped: stale" in e for _, e in events), events
+    # The command from before the stall is dropped as stale (a loaded machine may make a
+    # fresh one late as well: counted the same way, never applied), the repeated tick as out
+    # of order; every command is in one class.
+    assert gate["stale"] >= 1 and gate["out_of_order"] == 1, (gate, log, events)
+    assert sum(gate.values()) == len(log), (gate, log)
+    ages = [int(m[1]) for _, e in events
+            if (m := re.search(r"dropped: stale, (\d+) ms after its gyro sample", e))]
+    assert ages and max(ages) >= 500, events  # the one computed half a second before
     assert any("dropped: out_of_order" in e for _, e in events), events
     # The stall made the plant safe (no THR_CMD for 2 ticks); the stale command did not lift
     # it; three fresh ticks in a row did.

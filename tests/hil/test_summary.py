@@ -171,3 +171,16 @@ def test_a_demonstration_run_must_raise_its_false_alarm() -> None:
                      plant_records=_plant([0.0], [0.1], [0.0]), flight_records=flight,
                      expect=exp)
     assert loud["expectations_met"]
+
+
+def test_a_gyro_fault_detection_matches_an_active_gyro_fault_only() -> None:
+    """A gyro_fault detection names no thruster: it is correct when a gyro fault is active,
+    a false alarm before one (and never matches a thruster fault)."""
+    faults = [{"t_s": 20.0, "thruster": None, "type": "gyro_bias_step"},
+              {"t_s": 5.0, "thruster": "X+", "type": "stuck_on"}]
+    det = {"t_s": 20.4, "thruster": None, "type": "gyro_fault"}
+    out, fa, missed = match_detections(faults, [det])
+    assert out[0]["correct"] and out[0]["latency_s"] == 0.4 and fa == []
+    assert [f["thruster"] for f in missed] == ["X+"]
+    out, fa, _ = match_detections(faults, [{**det, "t_s": 10.0}])
+    assert not out[0]["correct"] and len(fa) == 1

@@ -124,8 +124,9 @@ def _random_torque_run(seed: int, sigma: float, step_s: float, t_end_s: float,
 
 
 def test_random_torque_samples_are_zero_mean_white_with_configured_std() -> None:
-    """The random torque is a fresh N(0, sigma^2) per axis on each integration step, held over
-    the step (plant.core ``_integrate_chunk``). A spherical body has no gyroscopic term, so the
+    """The random torque is a fresh N(0, sigma^2) per axis on each hold interval (default
+    10 ms, here equal to the step), held over it (plant.core ``_random_torque_mean``). A
+    spherical body has no gyroscopic term, so the
     torque of step k is recovered exactly as ``J (w_k+1 - w_k) / h``: mean within
     Z sigma / sqrt(n), chi2 bound on the std, no lag-1 correlation (n = 3 x 2000)."""
     sigma, h = 2.0, 0.01
@@ -145,8 +146,9 @@ def test_random_torque_samples_are_zero_mean_white_with_configured_std() -> None
 
 
 def test_random_torque_rate_variance_closed_form() -> None:
-    """Rate of a spherical body under the per-step random torque is a random walk:
-    ``Var w_k(t) = sigma^2 h t / I^2`` (t / h steps of variance (sigma h / I)^2). 200 seeds x 3
+    """Rate of a spherical body under the held random torque is a random walk:
+    ``Var w_k(t) = sigma^2 T t / I^2`` (t / T intervals of variance (sigma T / I)^2, T the
+    hold, 10 ms). 200 seeds x 3
     axes, chi2(600) bound (~ +/-30 %); mean within Z sqrt(var / 600)."""
     sigma, h, t = 2.0, 0.01, 2.0
     w = np.array([_random_torque_run(s, sigma, h, t).truth.omega_B_rad_s
@@ -177,14 +179,10 @@ def test_random_torque_is_seeded_and_leaves_other_streams_alone() -> None:
     assert np.allclose(gyro_noise(0.0), gyro_noise(3.0), rtol=0, atol=1e-18)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "plant/core.py _integrate_chunk draws a fresh N(0, random_torque_std_Nm^2) torque per "
-    "integration step, so the rate diffusion sigma^2 h t / I^2 scales with step_s (and with "
-    "the step splits at gyro sample times): the physics depends on the integrator step"))
 def test_random_torque_effect_does_not_depend_on_integration_step() -> None:
     """A disturbance is a property of the vehicle's environment, not of the integrator: the
     rate variance after 2 s must be the same with step 0.01 s and 0.04 s (F-test bound for two
-    chi2(450) samples at P_FAIL: ratio within ~ [0.66, 1.5]). Today the ratio is ~4."""
+    chi2(450) samples at P_FAIL: ratio within ~ [0.66, 1.5]). A per-step draw gave ~4."""
     sigma, t = 2.0, 2.0
     v1 = np.array([_random_torque_run(s, sigma, 0.01, t).truth.omega_B_rad_s
                    for s in range(150)]).ravel()
@@ -196,6 +194,30 @@ def test_random_torque_effect_does_not_depend_on_integration_step() -> None:
     lo, hi = f_dist.ppf(P_FAIL / 2, v4.size, v1.size), f_dist.ppf(1 - P_FAIL / 2, v4.size,
                                                                   v1.size)
     assert lo <= ratio <= hi, ratio
+
+
+def test_random_torque_history_is_the_same_for_any_step_when_held_per_tick() -> None:
+    """Held over 0.2 s (a flight tick), the torque history is a property of the seed and the
+    time grid only: a spherical body (no gyroscopic term) reaches the same rate with steps of
+    0.01 s and 0.05 s (RK4 is exact for a piecewise-constant torque on aligned grids), and
+    the rate changes by ``T_k hold / I`` per interval: mean-square within the chi2 bound."""
+    sigma, hold = 2.0, 0.2
+
+    def rates(step: float) -> np.ndarray:
+        v = make_vehicle(inertia_B_kg_m2=J_SPHERE,
+                         disturbance={"random_torque_std_Nm": sigma,
+                                      "random_torque_hold_s": hold})
+        plant = Plant(v, seed=3, step_s=step)
+        out = [plant.truth.omega_B_rad_s]
+        for k in range(1, 301):
+            plant.advance_to(k * hold)
+            out.append(plant.truth.omega_B_rad_s)
+        return np.array(out)
+
+    a, b = rates(0.01), rates(0.05)
+    assert np.abs(a - b).max() < 1e-12 * np.abs(a).max()
+    T = 200.0 * np.diff(a, axis=0) / hold  # the held torque of each interval
+    assert _chi2_ok(float(np.sum((T / sigma) ** 2)), T.size)
 
 
 # --------------------------------------------------------------------------- flex by force
