@@ -34,6 +34,9 @@ EXIT_CODES = {"passed": EXIT_PASSED, "not_met": EXIT_NOT_MET, "run_failed": EXIT
 # stops the flight once the plant has ended, so the flight's first and last ticks may differ
 # from the plant's by this much without a tick being lost.
 REALTIME_EDGE_TICKS = 15
+# The real-time plant stops on its clock at the duration, which may fall just before its last
+# tick's record: one tick short is the end of the run, not a stop.
+REALTIME_PLANT_END_TICKS = 1
 # Exit codes of a node that ended because the supervisor asked it to (SIGTERM handled: 0;
 # not handled in time: -15).
 CLEAN_EXIT_CODES = (0, -15)
@@ -88,7 +91,8 @@ def run_integrity(
     if not flight:
         reasons.append("the flight never ticked")
     edge = REALTIME_EDGE_TICKS if mode == "realtime" else 0
-    if plant and expected_ticks is not None and max(plant) + 1 < expected_ticks:
+    plant_edge = REALTIME_PLANT_END_TICKS if mode == "realtime" else 0
+    if plant and expected_ticks is not None and max(plant) + 1 + plant_edge < expected_ticks:
         reasons.append(f"stopped early: the plant ran {max(plant) + 1} of {expected_ticks} "
                        "ticks")
     missed = 0
