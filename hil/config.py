@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import ValidationError
 
 from bus.catalog import HEARTBEAT_PERIOD_S, N_MANIFOLDS_MAX, N_THRUSTERS_MAX, TICK_S
@@ -60,7 +59,7 @@ from common.vehicle import (
     VehicleArrays,
     VehicleCfg,
 )
-from hil.yamlsafe import YamlLimitError, read_yaml_file
+from hil.yamlsafe import YamlLimitError, read_mapping
 
 __all__ = [
     "BUS_FAULTS", "CONFIG_DIR", "GYRO_FAULTS", "G0_M_S2", "REPO_ROOT", "SCENARIO_DIR",
@@ -92,24 +91,10 @@ def _display(path: Path) -> str:
 def _read_yaml(path: Path) -> dict[str, Any]:
     """Read a config file under ``hil.yamlsafe``'s limits (size, depth, aliases, duplicate
     keys, UTF-8); every refusal is one ``ConfigError`` line."""
-    where = _display(path)
     try:
-        data = read_yaml_file(path)
-    except FileNotFoundError:
-        raise ConfigError(where, "", "an existing file", Raw("no such file")) from None
-    except IsADirectoryError:
-        raise ConfigError(where, "", "a file", Raw("a directory")) from None
-    except OSError as exc:
-        raise ConfigError(where, "", "a readable file", Raw(exc.strerror or str(exc))) from None
+        return read_mapping(path)
     except YamlLimitError as exc:
-        raise ConfigError(where, exc.field, exc.expected, Raw(exc.found)) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f"line {mark.line + 1}" if mark else "?"
-        raise ConfigError(where, line, "valid YAML", getattr(exc, "problem", str(exc))) from None
-    if not isinstance(data, dict):
-        raise ConfigError(where, "", "a YAML mapping at the top level", type(data).__name__)
-    return data
+        raise ConfigError(_display(path), exc.field, exc.expected, Raw(exc.found)) from None
 
 
 def resolve_vehicle_path(name_or_path: str, relative_to: Path | None = None) -> Path:

@@ -23,8 +23,7 @@ from common.units import DEG
 from hil.binding import command_quanta, fdir_status, manifold_mask
 from hil.config import Scenario
 from hil.node_settings import NodeSettings
-from hil.node_shell import Stop, first_record, named_values, say, xyz_values
-from hil.process_policy import idle_gc
+from hil.node_shell import Stop, first_record, named_values, say, write_record, xyz_values
 from hil.recorder import JsonlWriter
 from hil.records import FlightRecord, detection_record
 from hil.safe_states import GyroLossWatch, safety_settings
@@ -186,12 +185,7 @@ class FlightShell:
             rec["series"]["timing/flight_ms"] = {
                 "release_jitter": (jitter_s or 0.0) * 1e3, "gyro_wait": rt["gyro_wait_s"] * 1e3,
                 "compute": compute_s * 1e3}
-        if self.first:
-            rec.update(self.first)
-            self.first = {}
-        self.rec.write(rec)
-        self.events = []
-        idle_gc(rec["tick"])
+        write_record(self, rec)
 
     def absorb(self, msgs) -> list:
         """Take messages from the bus; returns lockstep events (TickRequest...)."""

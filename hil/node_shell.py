@@ -13,6 +13,7 @@ from bus.receiver import Receiver
 from bus.transport import BusConfig, BusLogger, Port, open_bus
 from hil.config import Scenario, resolve_vehicle_path
 from hil.node_settings import NodeSettings
+from hil.process_policy import idle_gc
 
 XYZ = ("x", "y", "z")
 
@@ -94,3 +95,12 @@ def first_record(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
     return first
 
 
+def write_record(shell, rec: dict) -> None:
+    """A shell's tick record out: the first record's extras merged in once, one line written
+    (``JsonlWriter``), the tick's events reset, and the garbage collector's slot after it."""
+    if shell.first:
+        rec.update(shell.first)
+        shell.first = {}
+    shell.rec.write(rec)
+    shell.events = []
+    idle_gc(rec["tick"])

@@ -24,8 +24,7 @@ from hil.binding import FAULT_KIND_FROM_BUS, fault_spec, gyro_message, plant_com
 from hil.config import Scenario
 from hil.errors import FaultCommandError
 from hil.node_settings import NodeSettings
-from hil.node_shell import Stop, first_record, named_values, round6, say, xyz_values
-from hil.process_policy import idle_gc
+from hil.node_shell import Stop, first_record, named_values, round6, say, write_record, xyz_values
 from hil.recorder import JsonlWriter
 from hil.records import PlantRecord, newly_active_faults, truth_fields
 from hil.safe_states import CommandGate, FlightLinkWatch, safety_settings
@@ -199,12 +198,7 @@ class PlantShell:
             rec.update(extra)
         if self.gate is not None:
             rec["command_gate"] = dict(self.gate.counts)
-        if self.first:
-            rec.update(self.first)
-            self.first = {}
-        self.rec.write(rec)
-        self.events = []
-        idle_gc(rec["tick"])
+        write_record(self, rec)
 
     # -- lockstep -------------------------------------------------------------------------
 

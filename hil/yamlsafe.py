@@ -144,6 +144,28 @@ def load_yaml_text(text: str) -> Any:
         loader.dispose()
 
 
+def read_mapping(path: Path) -> dict[str, Any]:
+    """A configuration file's top-level mapping, or ``YamlLimitError`` (field, expected,
+    found) for every way it can fail: no such file, a directory, unreadable, over a limit,
+    not YAML, not a mapping. Each loader renders that as its own one-line error."""
+    try:
+        data = read_yaml_file(path)
+    except FileNotFoundError:
+        raise YamlLimitError("", "an existing file", "no such file") from None
+    except IsADirectoryError:
+        raise YamlLimitError("", "a file", "a directory") from None
+    except OSError as exc:
+        raise YamlLimitError("", "a readable file", exc.strerror or str(exc)) from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f"line {mark.line + 1}" if mark else "?"
+        raise YamlLimitError(line, "valid YAML", repr(getattr(exc, "problem", str(exc)))) \
+            from None
+    if not isinstance(data, dict):
+        raise YamlLimitError("", "a YAML mapping at the top level", repr(type(data).__name__))
+    return data
+
+
 def read_yaml_file(path: Path) -> Any:
     """Read and parse ``path`` under the limits (``OSError`` passes through)."""
     size = path.stat().st_size

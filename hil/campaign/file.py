@@ -40,7 +40,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from hil.campaign.dispersions import (
@@ -50,7 +49,7 @@ from hil.campaign.dispersions import (
     parse_dist,
     parse_thruster_dist,
 )
-from hil.yamlsafe import YamlLimitError, read_yaml_file
+from hil.yamlsafe import YamlLimitError, read_mapping
 
 
 class CampaignError(Exception):
@@ -216,22 +215,9 @@ def _read_yaml(path: Path, where: str) -> dict[str, Any]:
     """The campaign file under ``hil.yamlsafe``'s limits (size, depth, aliases, duplicate
     keys, UTF-8), as for vehicles and scenarios."""
     try:
-        data = read_yaml_file(path)
-    except FileNotFoundError:
-        raise CampaignError(where, "", "an existing file", Bare("no such file")) from None
-    except IsADirectoryError:
-        raise CampaignError(where, "", "a file", Bare("a directory")) from None
-    except OSError as exc:
-        raise CampaignError(where, "", "a readable file", Bare(exc.strerror or str(exc))) from None
+        return read_mapping(path)
     except YamlLimitError as exc:
         raise CampaignError(where, exc.field, exc.expected, Bare(exc.found)) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f"line {mark.line + 1}" if mark else "?"
-        raise CampaignError(where, line, "valid YAML", getattr(exc, "problem", str(exc))) from None
-    if not isinstance(data, dict):
-        raise CampaignError(where, "", "a YAML mapping at the top level", type(data).__name__)
-    return data
 
 
 def _base(model: CampaignModel, path: Path, where: str
