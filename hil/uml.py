@@ -78,6 +78,12 @@ from typing import BinaryIO
 
 from hil.argtypes import number
 from hil.errors import HilError, UsageError
+from hil.uml_fpu import (
+    SSE_ONLY_ENV,
+    host_needs_legacy_fpu,
+    install_xstate_refusal,
+    kernel_env_args,
+)
 
 UML_MODULES_ROOT = Path("/usr/lib/uml/modules")
 INSTALL_HINT = "install the Debian package user-mode-linux (the test script does this)"
@@ -461,6 +467,12 @@ def _die_with_parent() -> None:
         pass
 
 
+def _guard_preexec_legacy_fpu() -> None:
+    """``_die_with_parent``, then the XSTATE refusal of ``hil.uml_fpu`` for UML's tree."""
+    _die_with_parent()
+    install_xstate_refusal()
+
+
 def _kill_group(proc: subprocess.Popen) -> None:
     """Stop the guard, which stops linux.uml and every host process it made."""
     if proc.poll() is not None:
@@ -518,6 +530,9 @@ def run_in_uml(
         if not _isatty(stdout if stdout is not None else sys.stdout):
             env["TERM"] = "dumb"
     env = {k: str(v) for k, v in env.items() if _NAME_RE.match(k)}
+    legacy_fpu = host_needs_legacy_fpu()
+    if legacy_fpu:  # an AMX host: UML on the legacy FPU regset, SSE code paths inside
+        env = {**env, **SSE_ONLY_ENV}
     env.setdefault("PATH", "/usr/local/bin:/usr/bin:/bin:/usr/sbin:/sbin")
     env["PWD"] = cwd
     env["HIL_UML"] = "1"
@@ -542,6 +557,8 @@ def run_in_uml(
         args = ["/bin/sh", "-c", _GUARD, "hil-uml-guard", "" if keep else ctl,
                 str(kernel.binary)] + build_kernel_args(
             init_path=init_path, mem=mem, umid=f"hil-{os.getpid()}-{token}", uml_dir=uml_dir)
+        if legacy_fpu:
+            args += kernel_env_args()
         filt = MarkerFilter(f"@@hil-uml-{token}-start@@", f"@@hil-uml-{token}-end@@")
         err_tail: collections.deque[str] = collections.deque(maxlen=_TAIL_LINES)
         # Own session: a terminal's Ctrl-C reaches only us, and we stop UML through the guard.
@@ -550,7 +567,8 @@ def run_in_uml(
                 stream.flush()  # what the caller printed comes before the command's output
         proc = subprocess.Popen(
             args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-            start_new_session=True, cwd=ctl, preexec_fn=_die_with_parent,
+            start_new_session=True, cwd=ctl,
+            preexec_fn=_guard_preexec_legacy_fpu if legacy_fpu else _die_with_parent,
         )
         pumps = [
             threading.Thread(target=_pump, daemon=True, args=(
