@@ -63,6 +63,8 @@ def _names(thruster: Any) -> list[str]:
 def label(thruster: Any) -> str:
     """A detection's thruster as people read it: ``7`` or ``one of {7, 9}``."""
     names = _names(thruster)
+    if not names:
+        return "the gyro"  # a sensor fault names no thruster
     return names[0] if len(names) == 1 else "one of {" + ", ".join(names) + "}"
 
 
@@ -86,8 +88,10 @@ def _incomplete(spec: Any, s: dict[str, Any]) -> str | None:
             return f"the fault {f['kind']} {f.get('thruster')} at {f['t_s']} s is not in the " \
                    f"summary's faults"
     for d in s["detections"]:
-        if not isinstance(d.get("type"), str) or not _names(d.get("thruster")) or \
-                not isinstance(d.get("t_s"), (int, float)):
+        # A sensor fault names no thruster (FDIR_STATUS gyro_fault); every other type does.
+        needs_thruster = d.get("type") != "gyro_fault"
+        if not isinstance(d.get("type"), str) or not isinstance(d.get("t_s"), (int, float)) \
+                or (needs_thruster and not _names(d.get("thruster"))):
             return f"a detection without type, thruster or time: {d}"
     return None
 

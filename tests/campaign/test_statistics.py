@@ -88,6 +88,15 @@ def _summary(**kw) -> dict:
     return s
 
 
+def test_a_false_gyro_fault_in_a_fault_free_run_is_a_false_alarm_not_a_failure() -> None:
+    gyro = {"t_s": 9.0, "thruster": None, "type": "gyro_fault", "gyro": "noise",
+            "correct": False}
+    free = replace(SPEC, fault=None)
+    r = classify(free, _summary(detections=[gyro], faults=[], missed_faults=[],
+                                false_alarms=[gyro]))
+    assert r["verdict"] == "false_alarm" and r["reason"] is None
+
+
 def test_verdicts() -> None:
     assert classify(SPEC, _summary(), commanded_after=True)["verdict"] == "missed"
     r = classify(SPEC, _summary(), commanded_after=False)
