@@ -187,7 +187,7 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     t_wall = time.monotonic()
     killed_flight_at = getattr(args, "kill_flight_at", None)
-    killed: dict[str, float] = {}
+    killed: dict[str, tuple[float, float]] = {}
     interrupted = False
     try:
         procs["flight"] = subprocess.Popen(_node_cmd("flight", scenario_path, out, args),
@@ -215,7 +215,7 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                 if source == "plant" and killed_flight_at is not None and \
                         r["t_s"] >= killed_flight_at and procs["flight"].poll() is None:
                     procs["flight"].kill()  # SIGKILL: the reliability check of docs/design.md 10
-                    killed["flight"] = round(float(r["t_s"]), 3)
+                    killed["flight"] = (killed_flight_at, round(float(r["t_s"]), 3))
                     print(f"  t={r['t_s']:7.1f} s  hil: flight process killed (SIGKILL)",
                           flush=True)
             if new and rrd is not None:

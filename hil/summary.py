@@ -187,7 +187,7 @@ def summarise(
     extra: dict[str, Any] | None = None,
     expected_ticks: int | None = None,
     exit_codes: dict[str, int | None] | None = None,
-    killed: dict[str, float] | None = None,
+    killed: dict[str, tuple[float, float]] | None = None,
     interrupted: bool = False,
     io_error: str | None = None,
 ) -> dict[str, Any]:

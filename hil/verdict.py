@@ -61,7 +61,7 @@ def run_integrity(
     flight_records: list[dict[str, Any]],
     expected_ticks: int | None,
     exit_codes: dict[str, int | None] | None = None,
-    killed: dict[str, float] | None = None,
+    killed: dict[str, tuple[float, float]] | None = None,
     interrupted: bool = False,
     io_error: str | None = None,
 ) -> dict[str, Any]:
@@ -69,7 +69,8 @@ def run_integrity(
 
     ``expected_ticks`` is the scenario's tick count (``None``: a run without an end, such as
     ``hil up``, judged only on what it ran); ``exit_codes`` the nodes' return codes (``None``
-    while still running); ``killed`` the nodes the supervisor killed on request and when.
+    while still running); ``killed`` the nodes the supervisor killed on request: (the time
+    asked, the simulated time it did so).
     """
     reasons: list[str] = []
     plant, flight = _ticks(plant_records), _ticks(flight_records)
@@ -77,8 +78,9 @@ def run_integrity(
         reasons.append(f"output could not be written: {io_error}")
     if interrupted:
         reasons.append("interrupted before the end (Ctrl-C or a signal)")
-    for node, t in (killed or {}).items():
-        reasons.append(f"{node} process killed on request at {t:g} s (--kill-flight-at)")
+    for node, (asked, t) in (killed or {}).items():
+        reasons.append(f"{node} process killed on request (--kill-flight-at {asked:g}) at "
+                       f"{t:g} s")
     for node, rc in sorted((exit_codes or {}).items()):
         if rc == EXIT_OUTPUT_LOST:
             reasons.append(f"{node} process stopped: it could not write its records (disk "

@@ -83,8 +83,9 @@ def test_realtime_edges_allow_the_grid_alignment_and_the_stop() -> None:
 
 def test_a_kill_on_request_and_an_interruption_are_failures_with_their_reason() -> None:
     s = _summary(range(200), range(51), exit_codes={"plant": 0, "flight": -9},
-                 killed={"flight": 10.0})
-    assert "flight process killed on request at 10 s (--kill-flight-at)" in s["run_failures"]
+                 killed={"flight": (10.0, 10.2)})
+    assert "flight process killed on request (--kill-flight-at 10) at 10.2 s" in \
+        s["run_failures"]
     assert not any("died" in r for r in s["run_failures"])
     s = _summary(range(50), range(50), interrupted=True)
     assert s["run_failures"][0] == "interrupted before the end (Ctrl-C or a signal)"
