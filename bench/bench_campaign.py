@@ -7,7 +7,7 @@ initial attitude and rate; ``--duration`` overrides the runs' length) are comput
 single-threaded worker processes, as ``--workers 2``). The clock runs from the first task
 submitted to the last row back: the cluster's start is printed apart; each worker's first task
 includes its imports. The ratio of the two rates shows the scaling. A benchmark prints; it
-asserts nothing (STYLE.md habit 8). The machine's load (``os.getloadavg``) is printed before
+asserts nothing (docs/style.md habit 8). The machine's load (``os.getloadavg``) is printed before
 and after: on a shared machine the figures move with it.
 
     .venv/bin/python bench/bench_campaign.py [--vehicles generic kalman_cube orel iss_rs]

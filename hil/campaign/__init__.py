@@ -1,1 +1,1 @@
-"""Monte Carlo campaigns (DESIGN.md section 11): ``hil campaign``."""
+"""Monte Carlo campaigns (docs/design.md section 11): ``hil campaign``."""

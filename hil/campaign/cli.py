@@ -1,4 +1,4 @@
-"""``hil campaign``: Monte Carlo campaigns (DESIGN.md section 11).
+"""``hil campaign``: Monte Carlo campaigns (docs/design.md section 11).
 
 Usage:
 
