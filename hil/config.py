@@ -69,7 +69,8 @@ __all__ = [
     "KalmanCfg", "ModeShapeCfg", "ObserverCfg", "OnboardModelCfg", "OrbitCfg",
     "OrbitCorrectionCfg", "PlantOverridesCfg", "SafetyCfg", "Scenario", "ScenarioCfg",
     "ThrustProfileCfg", "ThrusterCfg", "TimingCfg", "VehicleArrays", "VehicleCfg", "load_any",
-    "load_scenario", "load_vehicle", "resolve_vehicle_path", "MAX_DURATION_S", "RUN_NAME_PATTERN",
+    "load_scenario", "load_vehicle", "read_config", "resolve_vehicle_path", "MAX_DURATION_S",
+    "RUN_NAME_PATTERN",
 ]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -88,7 +89,7 @@ def _display(path: Path) -> str:
             return str(path)
 
 
-def _read_yaml(path: Path) -> dict[str, Any]:
+def read_config(path: Path) -> dict[str, Any]:
     """Read a config file under ``hil.yamlsafe``'s limits (size, depth, aliases, duplicate
     keys, UTF-8); every refusal is one ``ConfigError`` line."""
     try:
@@ -112,7 +113,7 @@ def load_vehicle(
 ) -> VehicleCfg:
     """Load and validate a vehicle. ``flight_overrides`` (from a scenario) merge into ``flight``."""
     path = resolve_vehicle_path(str(name_or_path))
-    data = _read_yaml(path)
+    data = read_config(path)
     if flight_overrides:
         data = dict(data)
         data["flight"] = _deep_merge(dict(data.get("flight") or {}), flight_overrides)
@@ -167,7 +168,7 @@ def load_scenario(path: str | Path) -> Scenario:
     """Load a scenario and its vehicle; cross-check thruster names in faults and expectations."""
     path = Path(path)
     where = _display(path)
-    data = _read_yaml(path)
+    data = read_config(path)
     try:
         cfg = ScenarioCfg.model_validate(data)
     except ValidationError as exc:
@@ -211,7 +212,7 @@ def load_scenario(path: str | Path) -> Scenario:
 def load_any(path: str | Path) -> VehicleCfg | Scenario:
     """Validate a vehicle or a scenario file (a scenario has a ``vehicle`` key)."""
     path = Path(path)
-    data = _read_yaml(path)
+    data = read_config(path)
     scenario_keys = {"vehicle", "duration_s", "faults", "expect", "initial", "target"}
     if "thrusters" not in data and scenario_keys & set(data):
         return load_scenario(path)

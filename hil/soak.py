@@ -131,9 +131,9 @@ def figures(samples: list[dict[str, Any]]) -> dict[str, Any]:
 def _scenario_file(args, tmp: Path) -> Path:
     duration = args.hours * 3600.0
     if args.scenario:
-        from hil.config import _read_yaml  # the bounded loader: one-line errors
+        from hil.config import read_config  # the bounded loader: one-line errors
 
-        data = _read_yaml(Path(args.scenario))
+        data = read_config(Path(args.scenario))
         data["duration_s"] = duration
         data["name"] = f"{data.get('name', 'soak')}-soak"
     else:

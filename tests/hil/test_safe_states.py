@@ -233,6 +233,19 @@ def _plant_bench(tmp_path: Path, safety: str, duration_s: float, mode: str):
 SLACK_S = 0.6  # how late a wall-clock deadline may be seen on a loaded machine
 
 
+def _run_realtime_with(shell, flight: Port, fake_flight, done: threading.Event) -> None:
+    """The plant's real-time loop with ``fake_flight`` on another thread; both closed after."""
+    th = threading.Thread(target=fake_flight)
+    th.start()
+    try:
+        assert shell.run_realtime(lambda: False) == 0
+    finally:
+        done.set()
+        th.join()
+        shell.port.close()
+        flight.close()
+
+
 def _closed_at(event: str) -> float:
     """The plant time in "safe: all valves and manifolds closed at 1.23 s (...)"."""
     return float(re.match(r"safe: all valves and manifolds closed at ([0-9.]+) s", event)[1])
@@ -257,15 +270,7 @@ def test_realtime_plant_closes_every_valve_when_thr_cmd_stops(tmp_path) -> None:
                 t_last_cmd.append(time.monotonic() - t0)
             k += 1
 
-    th = threading.Thread(target=fake_flight)
-    th.start()
-    try:
-        assert shell.run_realtime(lambda: False) == 0
-    finally:
-        done.set()
-        th.join()
-        shell.port.close()
-        flight.close()
+    _run_realtime_with(shell, flight, fake_flight, done)
     recs = [r for r in read_jsonl(out / "plant.jsonl") if not r.get("final")]
     assert recs[0]["config"]["safety"] == {"thr_cmd_lost_ticks": 2, "heartbeat_lost_s": 1.0}
     events = [e for r in recs for e in r["events"] if e.startswith("safe:")]
@@ -329,15 +334,7 @@ def test_realtime_stale_and_out_of_order_commands_are_dropped_and_counted(tmp_pa
                 last_k = k
             k += 1
 
-    th = threading.Thread(target=fake_flight)
-    th.start()
-    try:
-        assert shell.run_realtime(lambda: False) == 0
-    finally:
-        done.set()
-        th.join()
-        shell.port.close()
-        flight.close()
+    _run_realtime_with(shell, flight, fake_flight, done)
     recs = [r for r in read_jsonl(out / "plant.jsonl") if not r.get("final")]
     events = [(r["t_s"], e) for r in recs for e in r["events"]]
     assert recs[-1]["command_gate"]["stale"] >= 1  # in the records as they are written
