@@ -217,6 +217,18 @@ class DetectorCfg(_Model):
     # model uses is bounded to 1 +/- effectiveness_bound (0 turns the learning off).
     # chosen: docs/design.md 10 admits +/-15 % thrust errors; 0.2 learns them with a margin.
     effectiveness_bound: float = Field(default=0.2, ge=0.0, lt=1.0)
+    # None: the dead zone is a sphere, its radius the sum above. A number: an ellipsoid, each
+    # commanded thruster j adding relative_dead_zone |dw_j| along its own acceleration
+    # direction and this fraction of |dw_j| across it (a direction error: sin 2 deg = 0.035),
+    # added in quadrature with the absolute dead zone. A residual across every commanded
+    # thruster's direction (a leak on another channel) is then not hidden by their errors.
+    relative_dead_zone_across: float | None = Field(default=None, ge=0.0, lt=1.0)
+    # The command latency is learnt online with the effectiveness (one more state of the same
+    # filter: the sensitivity of every burn to the latency, from a second burn timeline), within
+    # +/- this many ms of the onboard model's nominal latency, and the model predicts with it.
+    # A pulse that lands a few ms late spills its tail into the next tick, where the thruster
+    # is not commanded: read as a leak. 0 turns it off. Needs effectiveness_bound > 0.
+    learn_latency_ms: float = Field(default=0.0, ge=0.0, le=50.0)
     # A commanded-evidence detection whose estimated thrust fraction is at least this is
     # "degraded" (with the fraction), below it "fails to fire". chosen: halfway between a
     # thruster that gives nothing and the smallest degradation worth reporting (30 %).

@@ -162,16 +162,25 @@ class Effectiveness:
 
     def __init__(self, mu_B_rad_s2: np.ndarray, bound: float, r_var: float, tick_s: float,
                  p0: float = 0.04, q: float = 1e-4, p0_leak: float = 0.01,
-                 q_leak: float = 1e-6) -> None:
+                 q_leak: float = 1e-6, latency_bound_s: float = 0.0,
+                 q_latency: float = 1e-10, latency_floor_s: float | None = None) -> None:
         self.mu = np.asarray(mu_B_rad_s2, dtype=float)
         n = len(self.mu)
         self.n = n
         self.h = float(tick_s)
         self.bound = float(bound)
         self.r_var = float(r_var)
-        self.p0 = np.concatenate([np.full(n, p0), np.full(n, p0_leak)])
-        self.q = np.concatenate([np.full(n, q), np.full(n, q_leak)])
-        self.x = np.concatenate([np.ones(n), np.zeros(n)])
+        # Last state (when latency_bound_s > 0): the command latency's offset from the onboard
+        # model's nominal one, s, within [floor, bound] (floor: -nominal, a latency is never
+        # negative; default -bound); prior standard deviation half the bound.
+        self.latency_bound_s = float(latency_bound_s)
+        self.latency_floor_s = (-self.latency_bound_s if latency_floor_s is None
+                                else max(float(latency_floor_s), -self.latency_bound_s))
+        lat = [] if self.latency_bound_s <= 0.0 else [0.0]
+        self.p0 = np.concatenate([np.full(n, p0), np.full(n, p0_leak),
+                                  np.full(len(lat), (0.5 * self.latency_bound_s) ** 2)])
+        self.q = np.concatenate([np.full(n, q), np.full(n, q_leak), np.full(len(lat), q_latency)])
+        self.x = np.concatenate([np.ones(n), np.zeros(n), lat])
         self.P = np.diag(self.p0)
         self._trusted = (self.x.copy(), self.P.copy())
         self._recent: list[list[float]] = [[] for _ in range(n)]
@@ -182,7 +191,15 @@ class Effectiveness:
 
     @property
     def leak(self) -> np.ndarray:
-        return self.x[self.n:]
+        return self.x[self.n: 2 * self.n]
+
+    @property
+    def latency_s(self) -> float:
+        """Learnt command-latency offset (s) from the nominal, within [floor, bound] (0 when
+        the latency is not learnt)."""
+        if self.latency_bound_s <= 0.0:
+            return 0.0
+        return float(np.clip(self.x[2 * self.n], self.latency_floor_s, self.latency_bound_s))
 
     @property
     def k(self) -> np.ndarray:
@@ -205,10 +222,14 @@ class Effectiveness:
                 out[j] = float(np.mean(hist))
         return np.clip(out, 0.0, 1.5)
 
-    def update(self, residual_B_rad_s: np.ndarray, eff_s: np.ndarray, use: np.ndarray) -> None:
+    def update(self, residual_B_rad_s: np.ndarray, eff_s: np.ndarray, use: np.ndarray,
+               deff_dlat: np.ndarray | None = None) -> None:
         """One tick: ``eff_s`` (N,) equivalent burn in the interval, ``use`` (N,) bool
-        (available); ``residual`` measured minus predicted with the current ``k``."""
+        (available); ``residual`` measured minus predicted with the current ``k`` and the
+        current ``latency_s``; ``deff_dlat`` (N,) the change of ``eff_s`` per second of extra
+        command latency (the onboard model's, ``OnboardModel.latency_sensitivity``)."""
         n = self.n
+        lat = self.latency_bound_s > 0.0 and deff_dlat is not None
         # eff may be negative for an integrating gyro (the change of the mean burn): the thrust
         # term is linear in it either way; the closed time is what is left of the tick.
         e = np.asarray(eff_s, dtype=float)
@@ -220,6 +241,12 @@ class Effectiveness:
                             (self.mu * closed[:, None])[avail]]).T
         r = np.asarray(residual_B_rad_s, dtype=float)
         k_used = self.k
+        lat_used = self.latency_s
+        if lat:
+            # z = thrust part + g (latency - nominal): g the thrust part's sensitivity.
+            g = self.mu.T @ (k_used * np.where(avail, np.asarray(deff_dlat, float), 0.0))
+            cols = np.concatenate([cols, [2 * n]])
+            H = np.concatenate([H, g[:, None]], axis=1)
         big = np.linalg.norm(self.mu, axis=1) * e >= 2.0 * math.sqrt(self.r_var)
         for j in np.flatnonzero(burn & big):
             phi = self.mu[j] * e[j]
@@ -228,9 +255,11 @@ class Effectiveness:
             del hist[:-_FRACTION_TICKS]
         if self.bound <= 0.0:
             return  # learning off: only the measured fraction above
-        d = np.diag_indices(2 * n)
+        d = np.diag_indices(len(self.x))
         self.P[d] = np.minimum(np.diag(self.P) + self.q, self.p0)
         z = r + self.mu.T @ (k_used * e)
+        if lat:
+            z = z + g * lat_used
         nu = z - H @ self.x[cols]
         S = H @ self.P[np.ix_(cols, cols)] @ H.T + self.r_var * np.eye(3)
         S_inv = np.linalg.inv(S)
@@ -250,7 +279,9 @@ class Effectiveness:
         self.P = 0.5 * (self.P + self.P.T)
         # A leak is thrust of a closed valve: never negative. Without this, an opposite pair
         # "both leaking and both weaker" is the same data as neither (the leaks cancel).
-        np.clip(self.x[n:], 0.0, None, out=self.x[n:])
+        np.clip(self.x[n: 2 * n], 0.0, None, out=self.x[n: 2 * n])
+        if self.latency_bound_s > 0.0:
+            self.x[2 * n] = self.latency_s
 
     def trust(self) -> None:
         self._trusted = (self.x.copy(), self.P.copy())
@@ -298,17 +329,37 @@ class Detector:
         self.latched = None
         self._hold = self.hold_ticks if hold_ticks is None else int(hold_ticks)
 
-    def project(self, dw_B_rad_s: np.ndarray,
-                commanded_abs_rad_s: float = 0.0) -> tuple[np.ndarray, float, bool]:
+    def in_ellipsoid(self, dw_B_rad_s: np.ndarray, commanded_rad_s: np.ndarray) -> bool:
+        """Ellipsoidal dead zone (``relative_dead_zone_across`` set): ``commanded_rad_s`` (N,)
+        each thruster's commanded rate-change magnitude ``|mu_j| |k_j eff_j|``. The residual is
+        inside when ``dw^T S^-1 dw < 1`` with ``S = dz^2 I + sum_j m_j^2 (a^2 e_j e_j^T + b^2
+        (I - e_j e_j^T))``, ``a = relative_dead_zone``, ``b = relative_dead_zone_across``."""
+        cfg = self.cfg
+        m = np.abs(np.asarray(commanded_rad_s, dtype=float))
+        a, b = cfg.relative_dead_zone, float(cfg.relative_dead_zone_across or 0.0)
+        wa, wb = (m * a) ** 2, (m * b) ** 2
+        S = (cfg.dead_zone_rad_s**2 + float(wb.sum())) * np.eye(3) \
+            + (self.e_B * (wa - wb)[:, None]).T @ self.e_B
+        dw = np.asarray(dw_B_rad_s, dtype=float)
+        if not np.any(dw):
+            return True
+        return float(dw @ np.linalg.solve(S, dw)) < 1.0
+
+    def project(self, dw_B_rad_s: np.ndarray, commanded_abs_rad_s: float = 0.0,
+                inside: bool | None = None) -> tuple[np.ndarray, float, bool]:
         """Steps 1-2: dead zone, normalisation and projections xi (N,).
 
         The dead zone is ``dead_zone_rad_s + relative_dead_zone * commanded_abs_rad_s``
-        (``commanded_abs_rad_s``: sum of the commanded thrusters' rate-change magnitudes).
+        (``commanded_abs_rad_s``: sum of the commanded thrusters' rate-change magnitudes),
+        unless ``inside`` was decided by the caller (the ellipsoid, ``in_ellipsoid``).
         """
         dw = np.asarray(dw_B_rad_s, dtype=float)
         norm = float(np.linalg.norm(dw))
-        dz = self.cfg.dead_zone_rad_s + self.cfg.relative_dead_zone * float(commanded_abs_rad_s)
-        if norm < dz or norm == 0.0:
+        if inside is None:
+            dz = (self.cfg.dead_zone_rad_s
+                  + self.cfg.relative_dead_zone * float(commanded_abs_rad_s))
+            inside = norm < dz
+        if inside or norm == 0.0:
             return np.zeros(self.n), norm, True
         return self.e_B @ (dw / norm), norm, False
 
@@ -324,10 +375,10 @@ class Detector:
 
     def step(self, tick: int, dw_B_rad_s: np.ndarray, active: np.ndarray,
              available: np.ndarray | None = None,
-             commanded_abs_rad_s: float = 0.0) -> DetectorOutput:
+             commanded_abs_rad_s: float = 0.0, inside: bool | None = None) -> DetectorOutput:
         act = np.asarray(active, dtype=bool)
         avail = np.ones(self.n, dtype=bool) if available is None else np.asarray(available, bool)
-        xi, norm, dz = self.project(dw_B_rad_s, commanded_abs_rad_s)
+        xi, norm, dz = self.project(dw_B_rad_s, commanded_abs_rad_s, inside)
         if self._hold > 0:
             self._hold -= 1
             return self._out(np.zeros(self.n), norm, dz, None, held=True)

@@ -66,7 +66,8 @@ class Prediction:
     prediction (``burn_s`` for a rate gyro; the change of the mean burn for an integrating one),
     before the effectiveness scale; ``lead_s`` (3,): per channel, the time from the centroid of
     the thrusters' burns in the interval to its end, weighted by each one's share ``|mu_j,c|
-    burn_j`` (the observer's input timing; 0 where nothing burns).
+    burn_j`` (the observer's input timing; 0 where nothing burns); ``deff_dlat`` (N,): the
+    change of ``eff_s`` per second of extra command latency (only with ``learn_latency``).
     """
 
     omega_calc_B_rad_s: np.ndarray
@@ -77,7 +78,12 @@ class Prediction:
     burning: np.ndarray
     dw_thr_abs_rad_s: float = 0.0
     eff_s: np.ndarray | None = None
+    deff_dlat: np.ndarray | None = None
     lead_s: np.ndarray | None = None
+
+
+# Latency step of the shadow timeline (finite difference of the burns), s.
+_LATENCY_STEP_S = 0.002
 
 
 class BurnTimeline:
@@ -157,6 +163,11 @@ class OnboardModel:
         prof = vehicle.thrust_profile
         self.timeline = BurnTimeline(len(arr.names), self.h, self.latency_s,
                                      prof.on_lag_ms / 1000.0, prof.off_lag_ms / 1000.0)
+        self.nominal_latency_s = self.latency_s
+        # Shadow timeline _LATENCY_STEP_S later (``learn_latency``): the sensitivity of each
+        # thruster's equivalent burn to the command latency, for the effectiveness learning.
+        self.shadow: BurnTimeline | None = None
+        self._prev_shadow = (np.zeros(len(arr.names)), np.zeros(len(arr.names)))
         self.mu_B_rad_s2 = arr.mu_B_rad_s2          # (N, 3)
         self.J = arr.J_B_kg_m2
         self.J_inv = arr.J_inv_B
@@ -168,8 +179,24 @@ class OnboardModel:
         self._prev_burn = np.zeros(len(arr.names))
         self._prev_angle = np.zeros(len(arr.names))
 
+    def learn_latency(self) -> None:
+        """Keep a shadow timeline so that every prediction carries ``deff_dlat``."""
+        t = self.timeline
+        self.shadow = BurnTimeline(t.n, t.h, t.latency_s + _LATENCY_STEP_S, t.on_lag_s,
+                                   t.off_lag_s)
+
+    def set_latency_offset(self, offset_s: float) -> None:
+        """Commands from now on land ``nominal + offset_s`` after the sample (learnt)."""
+        self.latency_s = max(0.0, self.nominal_latency_s + float(offset_s))
+        self.timeline.latency_s = self.latency_s
+        if self.shadow is not None:
+            self.shadow.latency_s = self.latency_s + _LATENCY_STEP_S
+
     def reset(self) -> None:
         self.timeline.reset()
+        if self.shadow is not None:
+            self.shadow.reset()
+            self._prev_shadow = (np.zeros(self.timeline.n), np.zeros(self.timeline.n))
         self.omega_model_B_rad_s = None
         self._prev_burn[:] = 0.0
         self._prev_angle[:] = 0.0
@@ -202,6 +229,16 @@ class OnboardModel:
         nominal, ``flight.detector.Effectiveness``); the thrusters' share is
         ``sum_j scale_j mu_j eff_j``."""
         burn, angle = self.timeline.advance(tau_cmd_s)
+        deff = None
+        if self.shadow is not None:
+            sb, sa = self.shadow.advance(tau_cmd_s)
+            if self.sample_kind == "mean":
+                s_eff = self._prev_shadow[0] + (sa - self._prev_shadow[1]) / self.h
+                p_eff = self._prev_burn + (angle - self._prev_angle) / self.h
+            else:
+                s_eff, p_eff = sb, burn
+            deff = (s_eff - p_eff) / _LATENCY_STEP_S
+            self._prev_shadow = (sb, sa)
         if self.predict_from == "model":
             if self.omega_model_B_rad_s is None:
                 self.omega_model_B_rad_s = np.array(omega_B_rad_s, dtype=float)
@@ -234,4 +271,5 @@ class OnboardModel:
             dw_thr_abs_rad_s=float(np.linalg.norm(self.mu_B_rad_s2, axis=1) @ np.abs(k * eff)),
             eff_s=eff,
             lead_s=lead,
+            deff_dlat=deff,
         )

@@ -108,8 +108,13 @@ class FlightSoftware:
         self.observer = AdaptiveObserver(fc.observer, self.h)
         dc = fc.detector
         # Measurement variance: the residual the detector treats as noise (its dead zone).
+        learn_lat = dc.learn_latency_ms / 1000.0 if dc.effectiveness_bound > 0.0 else 0.0
         self.effectiveness = Effectiveness(self.arrays.mu_B_rad_s2, dc.effectiveness_bound,
-                                           dc.dead_zone_rad_s**2, self.h)
+                                           dc.dead_zone_rad_s**2, self.h,
+                                           latency_bound_s=learn_lat,
+                                           latency_floor_s=-self.model.nominal_latency_s)
+        if learn_lat > 0.0:
+            self.model.learn_latency()
         self.detector = Detector(self.arrays.mu_B_rad_s2, dc, self.arrays.names,
                                  hold_ticks=dc.response_hold_ticks,
                                  effectiveness=self.effectiveness)
@@ -233,11 +238,18 @@ class FlightSoftware:
         """Feed one tick's residual to the detector and the observer's innovation ``eps`` (the
         error before the observer's correction: the adaptive observer's residual is only W5 of
         it on switching ticks) to the effectiveness learning."""
-        out = self.detector.step(tick, dw, pred.active, avail, pred.dw_thr_abs_rad_s)
+        inside = None
+        if self.detector.cfg.relative_dead_zone_across is not None and pred.eff_s is not None:
+            m = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) * np.abs(
+                self.effectiveness.k * pred.eff_s)
+            inside = self.detector.in_ellipsoid(dw, m)
+        out = self.detector.step(tick, dw, pred.active, avail, pred.dw_thr_abs_rad_s, inside)
         if tick == self._tick:
             self._det_out = out
         if out.detection is None and not out.held and pred.eff_s is not None:
-            self.effectiveness.update(eps, pred.eff_s, avail)
+            self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat)
+            if pred.deff_dlat is not None:
+                self.model.set_latency_offset(self.effectiveness.latency_s)
             if self.detector.quiet():
                 self.effectiveness.trust()
         return out.detection
@@ -340,6 +352,8 @@ class FlightSoftware:
         # frequency and influence re-initialised (a stuck thruster's thrust was taken in as
         # "flex" and dragged the frequency to the band's edge).
         self.effectiveness.restore()
+        if self.model.shadow is not None:
+            self.model.set_latency_offset(self.effectiveness.latency_s)
         if self.observer.kind == "adaptive":
             self.observer.reset(self._obs.omega_hat_B_rad_s)
         self.model.resync(self._obs.omega_hat_B_rad_s)

@@ -137,11 +137,14 @@ def test_no_gyro_fault_on_a_clean_sensor_or_a_persistent_jump() -> None:
 
 def _run(vehicle: str, faults: list[FaultSpec], duration_s: float, seed: int = 1,
          init: InitialCfg | None = None, plant: PlantOverridesCfg | None = None,
-         flight: dict | None = None):
+         flight: dict | None = None, keep: list | None = None):
+    """Closed loop; ``keep``, a list, receives the flight software."""
     v = load_vehicle(vehicle, flight)
     init = init or InitialCfg(attitude=AttitudeCfg(axis=(1, 0, 0), angle_deg=0.5))
     pl = Plant(v, seed=seed, initial=init, overrides=plant)
     fs = FlightSoftware(v, initial_attitude=init.attitude)
+    if keep is not None:
+        keep.append(fs)
     for f in faults:
         pl.inject(f)
     dets = []

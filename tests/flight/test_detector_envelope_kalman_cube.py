@@ -1,0 +1,62 @@
+"""The detector on kalman_cube (seed 002's cube) across the envelope: learnt command latency
+and the ellipsoidal dead zone (issue 12).
+
+Oracles: the plant's own command latency, thrust errors and faults (closed loop: flight core +
+plant core, as tests/flight/test_fdir_envelope.py).
+"""
+
+from __future__ import annotations
+
+import pytest
+from test_fdir_envelope import _run  # same folder (on sys.path under pytest)
+
+from flight.detector import STUCK_ON
+from hil.config import AttitudeCfg, FaultSpec, InitialCfg, PlantOverridesCfg
+
+# A slew from 20 deg with a tumble: every channel fires for seconds, then a hold.
+SLEW = InitialCfg(attitude=AttitudeCfg(axis=(1, 1, 0), angle_deg=20.0),
+                  rate_B_deg_s=(1.5, -1.0, 0.5))
+# Thrust errors at the edge of the envelope (global 0.88 x per thruster 0.85-1.15) and 14 ms
+# of command latency against the onboard model's nominal 0.
+EDGE = dict(thrust_scale=0.88, command_latency_ms=14.0, direction_error_deg=1.5,
+            thrust_scale_per_thruster={"X+": 0.85, "X-": 1.15, "Y+": 0.87, "Y-": 1.13,
+                                       "Z+": 1.1, "Z-": 0.9})
+
+
+@pytest.mark.parametrize("latency_ms", [0.0, 6.0, 14.0])
+def test_command_latency_is_learnt(latency_ms: float) -> None:
+    keep: list = []
+    _run("kalman_cube", [], 40.0, init=SLEW,
+         plant=PlantOverridesCfg(command_latency_ms=latency_ms), keep=keep)
+    fs = keep[0]
+    assert fs.effectiveness.latency_s * 1e3 == pytest.approx(latency_ms, abs=2.0)
+    assert fs.model.latency_s * 1e3 == pytest.approx(latency_ms, abs=2.0)
+
+
+def test_edge_of_the_envelope_raises_no_alarm_and_does_without_the_learning() -> None:
+    """The same run alarms when the latency and the thrust scale are not learnt (the oracle
+    that the test can fail)."""
+    dets, _, _ = _run("kalman_cube", [], 60.0, init=SLEW, plant=PlantOverridesCfg(**EDGE))
+    assert dets == [], [(t, d.describe()) for t, d in dets]
+    off = {"detector": {"learn_latency_ms": 0.0, "effectiveness_bound": 0.0}}
+    dets_off, _, _ = _run("kalman_cube", [], 60.0, init=SLEW, plant=PlantOverridesCfg(**EDGE),
+                          flight=off)
+    assert dets_off
+
+
+@pytest.mark.parametrize("fraction", [1.0, 0.5, 0.15])
+def test_a_leak_during_firings_on_other_channels_is_seen(fraction: float) -> None:
+    """Y+ stuck on while the craft slews: the other channels' firings do not hide it (the
+    ellipsoid); a spherical relative dead zone wide enough for the envelope misses the 15 %
+    leak (checked below for that fraction)."""
+    fault = FaultSpec(kind="stuck_on", t_s=3.0, thruster="Y+", fraction=fraction)
+    dets, _, _ = _run("kalman_cube", [fault], 20.0, init=SLEW, plant=PlantOverridesCfg(**EDGE))
+    assert dets, "missed"
+    t, d = dets[0]
+    assert (d.names, d.kind) == (("Y+",), STUCK_ON)
+    assert t - 3.0 <= 7.1  # seed 002: 15 % within 7.1 s
+    if fraction == 0.15:
+        sphere = {"detector": {"relative_dead_zone": 0.3, "relative_dead_zone_across": None}}
+        dets_s, _, _ = _run("kalman_cube", [fault], 20.0, init=SLEW,
+                            plant=PlantOverridesCfg(**EDGE), flight=sphere)
+        assert not dets_s or dets_s[0][0] - 3.0 > 7.1
