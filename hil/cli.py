@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "hil.config_cmd",
     "hil.thruster_profile_cmd",
     "hil.dbc_cmd",
+    "hil.lcm_cmd",
     "hil.vcan",
     "hil.uml",
     "hil.thresholds_cmd",
