@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "hil.lcm_cmd",
     "hil.vcan",
     "hil.uml",
+    "hil.netns",
     "hil.thresholds_cmd",
     "hil.run",
     "hil.panel",

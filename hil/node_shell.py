@@ -62,12 +62,17 @@ def lockstep_receiver(reply_timeout_s: float) -> Receiver:
 
 
 def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
-    """The node's CAN port (lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log``
+    """The node's port: CAN, or LCM for interface ``lcm`` (``bus.lcm_transport.LcmPort``) (lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log``
     when ``settings.bus_log``)."""
     s = settings
+    receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
+    if s.interface == "lcm":  # LCM: the channel is the provider URL (docs/lcm.md)
+        from bus.lcm_transport import LcmPort
+
+        logger = BusLogger(out / f"{name}.bus.log", channel="lcm") if s.bus_log else None
+        return LcmPort(s.channel, receiver=receiver, logger=logger)
     cfg = BusConfig(interface=s.interface, channel=s.channel)
     logger = BusLogger(out / f"{name}.bus.log", channel=s.channel) if s.bus_log else None
-    receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
     return Port(open_bus(cfg), receiver=receiver, logger=logger)
 
 

@@ -128,6 +128,96 @@ class BusMonitor(threading.Thread):
         self.bus.shutdown()
 
 
+class LcmMonitor(threading.Thread):
+    """``bus.log`` of an LCM run: every HIL_* message of the bus as the CAN frames it stands
+    for (candump format, decodable with ``bus/hil.dbc``), plus the LCM bytes seen."""
+
+    def __init__(self, url: str, path: Path) -> None:
+        super().__init__(daemon=True)
+        import can
+
+        from bus.lcm_schema import by_channel
+        from bus.lcm_transport import open_lcm
+
+        self.lc = open_lcm(url)
+        self.structs = by_channel()
+        self.writer = can.CanutilsLogWriter(str(path), channel="lcm")
+        self.frames = 0
+        self.lcm_messages = 0
+        self.lcm_bytes = 0
+        self.error: str | None = None
+        self._halt = threading.Event()
+        self.lc.subscribe(r"HIL_.*", self._on)
+
+    def _on(self, channel: str, data: bytes) -> None:
+        from bus.lcm_schema import decode_struct, to_frames
+        from bus.transport import to_can_message
+
+        st = self.structs.get(channel)
+        if st is None:
+            return
+        self.lcm_messages += 1
+        self.lcm_bytes += len(data)
+        if self.error is not None:
+            return
+        try:
+            frames = to_frames(st, decode_struct(st, data))
+        except (ValueError, KeyError, TypeError, OverflowError):
+            return  # the nodes count it; the log keeps what is frames
+        t = time.time()
+        try:
+            for fr in frames:
+                self.writer.on_message_received(to_can_message(fr, t))
+                self.frames += 1
+        except OSError as exc:
+            self.error = f"bus.log: {exc.strerror or exc}"
+
+    def run(self) -> None:
+        while not self._halt.is_set():
+            self.lc.handle_timeout(100)
+
+    def stop(self) -> None:
+        self._halt.set()
+        self.join(2.0)
+        try:
+            self.writer.stop()
+        except OSError as exc:
+            self.error = self.error or f"bus.log: {exc.strerror or exc}"
+
+
+def _monitor(args, path: Path):
+    if args.interface == "lcm":
+        return LcmMonitor(args.channel, path)
+    return BusMonitor(args.interface, args.channel, path)
+
+
+def resolve_bus(args, sc=None) -> None:
+    """``--bus`` / the scenario's ``bus:`` -> ``args.interface`` / ``args.channel`` (LCM is
+    carried as interface ``lcm`` with the URL as its channel, through every layer)."""
+    from bus.lcm_transport import DEFAULT_URL
+
+    kind = getattr(args, "bus", None)
+    url = getattr(args, "lcm_url", None)
+    cfg_bus = sc.cfg.bus if sc is not None else None
+    if kind is None and cfg_bus is not None:
+        kind = cfg_bus.kind
+        url = url or cfg_bus.url
+    if kind == "lcm":
+        args.interface, args.channel = "lcm", url or DEFAULT_URL
+    elif url is not None:
+        raise UsageError(f"--lcm-url: expected it with --bus lcm, got {url!r} with the "
+                         f"{kind or 'can'} bus")
+
+
+def maybe_in_netns(args, argv: list[str]) -> int | None:
+    """Re-run this command in a private network namespace for LCM over udpm (hil.netns)."""
+    if args.interface != "lcm":
+        return None
+    from hil.netns import run_in_namespace
+
+    return run_in_namespace(argv, args.channel, cwd=os.getcwd())
+
+
 def _node_cmd(node: str, scenario: Path, out: Path, args,
               start_after: Path | None = None) -> list[str]:
     cmd = [sys.executable, "-m", "hil.nodes", node, "--scenario", str(scenario),
@@ -171,10 +261,14 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
     n_ticks = int(round(sc.cfg.duration_s / sc.vehicle.timing.tick_s))
     out.mkdir(parents=True, exist_ok=True)
     for name in ("plant.jsonl", "flight.jsonl", "run.rrd", "summary.json", "plant.ready",
-                 "flight.ready", "bus.log"):
+                 "flight.ready", "bus.log", "netns.pid"):
         (out / name).unlink(missing_ok=True)
-    monitor = BusMonitor(args.interface, args.channel, out / "bus.log")
+    monitor = _monitor(args, out / "bus.log")
     monitor.start()
+    if args.interface == "lcm":
+        from hil.netns import write_pid
+
+        write_pid(out)
     # The rerun recording is built from the JSON lines after the run (``build_rrd``): logging it
     # live cost the supervisor more CPU than the flight software used, in the middle of the
     # lockstep loop, and importing the SDK delayed the start. Live only when a viewer is asked.
@@ -257,10 +351,17 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         extra={"wall_s": round(wall, 3), "sim_s": sim,
                **speed_figures(plant_records, sim, wall, t_wall),
                "bus_frames_logged": monitor.frames,
+               **({"bus_kind": "lcm", "lcm_url": args.channel,
+                   "lcm_messages_logged": monitor.lcm_messages,
+                   "lcm_bytes_logged": monitor.lcm_bytes,
+                   "network": os.environ.get("HIL_LCM_NETNS", "host")}
+                  if args.interface == "lcm" else {"bus_kind": "can"}),
                "exit_codes": {k: p.returncode for k, p in procs.items()},
                "timing": timing_summary(plant_records, flight_records,
                                         sc.vehicle.timing.tick_s),
-               "where": "user-mode Linux" if os.environ.get(INSIDE_UML_ENV) else "native"},
+               "where": ("user-mode Linux" if os.environ.get(INSIDE_UML_ENV) else "native")
+               + (f", LCM: {os.environ.get('HIL_LCM_NETNS', 'host')} network"
+                  if args.interface == "lcm" else "")},
         expected_ticks=None if endless else n_ticks,
         exit_codes={k: p.returncode for k, p in procs.items()}, killed=killed,
         interrupted=interrupted and not endless, io_error="; ".join(io_errors) or None,
@@ -362,6 +463,7 @@ def _batch_policy() -> None:
 def _cmd_run(args) -> int:
     scenario = Path(args.scenario)
     sc = load_scenario(scenario)  # config errors exit 2 before anything starts
+    resolve_bus(args, sc)
     out = Path(args.out or Path("runs") / sc.cfg.name)
     check_writable(out)  # before user-mode Linux boots
     argv = ["run", str(scenario.resolve()), "--mode", args.mode, "--out", str(out.resolve()),
@@ -370,7 +472,9 @@ def _cmd_run(args) -> int:
         argv += ["--kill-flight-at", str(args.kill_flight_at)]
     if args.rt_priority:
         argv.append("--rt")
-    rc = maybe_in_uml(args, argv)
+    rc = maybe_in_netns(args, argv)
+    if rc is None:
+        rc = maybe_in_uml(args, argv)
     if rc is not None:
         return rc
     _batch_policy()
@@ -383,8 +487,9 @@ def _cmd_up(args) -> int:
     check_writable(Path(args.out or "runs/up"))  # before anything is made or boots
     if args.scenario:
         scenario = Path(args.scenario).resolve()
-        load_scenario(scenario)  # config errors exit 2 before anything starts
+        resolve_bus(args, load_scenario(scenario))  # config errors exit 2 before anything
     else:
+        resolve_bus(args)
         from hil.config import VEHICLE_DIR
 
         if not (VEHICLE_DIR / f"{args.vehicle}.yaml").exists():
@@ -402,7 +507,9 @@ def _cmd_up(args) -> int:
             "--interface", args.interface, "--channel", args.channel]
     if args.rt_priority:
         argv.append("--rt")
-    rc = maybe_in_uml(args, argv)
+    rc = maybe_in_netns(args, argv)
+    if rc is None:
+        rc = maybe_in_uml(args, argv)
     if rc is not None:
         return rc
     _batch_policy()
@@ -418,6 +525,12 @@ def _bus_args(p) -> None:
     p.add_argument("--interface", default="socketcan",
                    help="python-can interface (default socketcan; udp_multicast, pcan, ...)")
     p.add_argument("--channel", default="vcan0", help="bus channel (default vcan0)")
+    p.add_argument("--bus", choices=("can", "lcm"),
+                   help="the bus: can (python-can --interface/--channel, the default) or lcm "
+                        "(docs/lcm.md; default: the scenario's bus:, else can)")
+    p.add_argument("--lcm-url", metavar="URL",
+                   help="LCM provider with --bus lcm (default "
+                        "udpm://239.255.76.67:7667?ttl=0, in a private network namespace)")
 
 
 def register(sub) -> None:
