@@ -62,8 +62,10 @@ def lockstep_receiver(reply_timeout_s: float) -> Receiver:
 
 
 def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
-    """The node's port: CAN, or LCM for interface ``lcm`` (``bus.lcm_transport.LcmPort``) (lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log``
-    when ``settings.bus_log``)."""
+    """The node's port: CAN, or LCM for interface ``lcm`` (``bus.lcm_transport.LcmPort``).
+
+    Lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log`` when
+    ``settings.bus_log``."""
     s = settings
     receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
     if s.interface == "lcm":  # LCM: the channel is the provider URL (docs/lcm.md)
