@@ -91,7 +91,9 @@ class LcmPort(Port):
         self.tx_bytes = 0
         self.rx_bytes = 0
         self.malformed = 0
-        self._sub = self.lc.subscribe(r"HIL_.*", self._on_message)
+        # Only the catalog's channels (telemetry and other programs' channels stay unread).
+        names = "|".join(sorted(self._by_channel))
+        self._sub = self.lc.subscribe(f"^({names})$", self._on_message)
 
     # --- send ------------------------------------------------------------------------
 

@@ -19,15 +19,38 @@ from pathlib import Path
 from bus.lcm_schema import LCM_DIR, PACKAGE, PY_DIR, lcm_files
 from hil.errors import UsageError
 
+# The telemetry types (hil.telemetry) are written by hand in hil/lcm/; their Python too is
+# lcm-gen's, in hil/hil_telemetry/.
+TELEMETRY_LCM_DIR = Path(__file__).with_name("lcm")
+TELEMETRY_PY_DIR = Path(__file__).parent
+TELEMETRY_PACKAGE = "hil_telemetry"
+
+
+def lcm_tool(name: str) -> str:
+    """An LCM program (``lcm-gen``, ``lcm-logger``...) beside this Python (the venv's), else
+    on PATH."""
+    here = Path(sys.executable).parent / name
+    found = str(here) if here.exists() else shutil.which(name)
+    if not found:
+        raise UsageError(f"hil: expected {name} (PyPI package lcm) installed, got none "
+                         f"beside python nor on PATH: run `bash scripts/setup.sh`")
+    return found
+
 
 def lcm_gen_path() -> str:
-    """``lcm-gen`` beside this Python (the venv's), else on PATH."""
-    here = Path(sys.executable).parent / "lcm-gen"
-    found = str(here) if here.exists() else shutil.which("lcm-gen")
-    if not found:
-        raise UsageError("hil lcm-types: expected lcm-gen (PyPI package lcm) installed, got "
-                         "none beside python nor on PATH: run `bash scripts/setup.sh`")
-    return found
+    return lcm_tool("lcm-gen")
+
+
+def _lcm_gen(files: list[str], py_dir: Path, package: str) -> None:
+    pkg = py_dir / package
+    if pkg.exists():
+        shutil.rmtree(pkg)
+    subprocess.run([lcm_gen_path(), "--python", "--ppath", str(py_dir), *sorted(files)],
+                   check=True, capture_output=True, text=True)
+
+
+def generate_telemetry(py_dir: Path) -> None:
+    _lcm_gen([str(p) for p in TELEMETRY_LCM_DIR.glob("*.lcm")], py_dir, TELEMETRY_PACKAGE)
 
 
 def generate(lcm_dir: Path, py_dir: Path) -> None:
@@ -39,20 +62,21 @@ def generate(lcm_dir: Path, py_dir: Path) -> None:
     for name, text in lcm_files().items():
         (lcm_dir / name).write_text(text)
         files.append(str(lcm_dir / name))
-    pkg = py_dir / PACKAGE
-    if pkg.exists():
-        shutil.rmtree(pkg)
-    subprocess.run([lcm_gen_path(), "--python", "--ppath", str(py_dir), *sorted(files)],
-                   check=True, capture_output=True, text=True)
+    _lcm_gen(files, py_dir, PACKAGE)
 
 
-def differences(lcm_dir: Path, py_dir: Path) -> list[str]:
-    """Files that differ between a fresh generation and ``lcm_dir`` / ``py_dir``."""
+def differences(lcm_dir: Path, py_dir: Path, telemetry_py_dir: Path = TELEMETRY_PY_DIR
+                ) -> list[str]:
+    """Files that differ between a fresh generation and ``lcm_dir`` / ``py_dir`` (and the
+    telemetry types' Python in ``telemetry_py_dir``)."""
     with tempfile.TemporaryDirectory() as tmp:
         t = Path(tmp)
         generate(t / "lcm", t)
+        generate_telemetry(t / "tel")
         out = []
-        for fresh, committed in ((t / "lcm", lcm_dir), (t / PACKAGE, py_dir / PACKAGE)):
+        for fresh, committed in ((t / "lcm", lcm_dir), (t / PACKAGE, py_dir / PACKAGE),
+                                 (t / "tel" / TELEMETRY_PACKAGE,
+                                  telemetry_py_dir / TELEMETRY_PACKAGE)):
             want = sorted(p.name for p in fresh.iterdir() if p.suffix in (".lcm", ".py"))
             have = sorted(p.name for p in committed.iterdir()
                           if p.suffix in (".lcm", ".py")) if committed.exists() else []
@@ -69,10 +93,13 @@ def run(args: argparse.Namespace) -> int:
         for d in diff:
             print(f"{d}; run `hil lcm-types`", file=sys.stderr)
         if not diff:
-            print(f"bus/lcm and bus/{PACKAGE}: match the catalog")
+            print(f"bus/lcm and bus/{PACKAGE}: match the catalog; hil/{TELEMETRY_PACKAGE}: "
+                  "matches hil/lcm")
         return 1 if diff else 0
     generate(LCM_DIR, PY_DIR)
-    print(f"wrote bus/lcm/*.lcm and bus/{PACKAGE}/ (lcm-gen --python)")
+    generate_telemetry(TELEMETRY_PY_DIR)
+    print(f"wrote bus/lcm/*.lcm, bus/{PACKAGE}/ and hil/{TELEMETRY_PACKAGE}/ "
+          "(lcm-gen --python)")
     return 0
 
 

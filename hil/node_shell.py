@@ -104,10 +104,14 @@ def first_record(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
 
 def write_record(shell, rec: dict) -> None:
     """A shell's tick record out: the first record's extras merged in once, one line written
-    (``JsonlWriter``), the tick's events reset, and the garbage collector's slot after it."""
+    (``JsonlWriter``), published as telemetry when the shell has a ``telemetry`` publisher,
+    the tick's events reset, and the garbage collector's slot after it."""
     if shell.first:
         rec.update(shell.first)
         shell.first = {}
     shell.rec.write(rec)
+    telemetry = getattr(shell, "telemetry", None)
+    if telemetry is not None and not rec.get("final"):
+        telemetry.publish(rec)  # HIL_TRUTH / HIL_FLIGHT_VIEW on LCM (hil.telemetry)
     shell.events = []
     idle_gc(rec["tick"])

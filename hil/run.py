@@ -204,18 +204,92 @@ def resolve_bus(args, sc=None) -> None:
         url = url or cfg_bus.url
     if kind == "lcm":
         args.interface, args.channel = "lcm", url or DEFAULT_URL
-    elif url is not None:
-        raise UsageError(f"--lcm-url: expected it with --bus lcm, got {url!r} with the "
-                         f"{kind or 'can'} bus")
+    elif url is not None and not (getattr(args, "telemetry", None)
+                                  or getattr(args, "lcm_log", False)):
+        raise UsageError(f"--lcm-url: expected it with --bus lcm, --telemetry or --lcm-log, "
+                         f"got {url!r} with the {kind or 'can'} bus alone")
+    # Telemetry (hil.telemetry): always over an LCM bus, on request over CAN.
+    if args.interface == "lcm":
+        args.telemetry = args.channel
+    elif getattr(args, "telemetry", None) or getattr(args, "lcm_log", False):
+        args.telemetry = url or (args.telemetry if isinstance(getattr(args, "telemetry", None),
+                                                              str) else DEFAULT_URL)
+    else:
+        args.telemetry = None
+
+
+def _lcm_argv(args) -> list[str]:
+    """The telemetry flags for a re-run (namespace, user-mode Linux)."""
+    out = ["--telemetry", args.telemetry] if args.telemetry and args.interface != "lcm" else []
+    return out + (["--lcm-log"] if getattr(args, "lcm_log", False) else [])
 
 
 def maybe_in_netns(args, argv: list[str]) -> int | None:
-    """Re-run this command in a private network namespace for LCM over udpm (hil.netns)."""
-    if args.interface != "lcm":
+    """Re-run this command in a private network namespace for LCM over udpm (hil.netns):
+    the LCM bus, or the telemetry of a CAN run. SocketCAN's vcan0 lives in the host's (or
+    user-mode Linux's) namespace, so a SocketCAN run keeps its namespace: inside user-mode
+    Linux the route goes on the instance's loopback; natively the host needs its own."""
+    if args.telemetry is None:
         return None
-    from hil.netns import run_in_namespace
+    from hil.netns import NETNS_ENV, host_has_multicast_route, run_in_namespace
 
-    return run_in_namespace(argv, args.channel, cwd=os.getcwd())
+    if args.interface == "socketcan" and not os.environ.get(INSIDE_UML_ENV):
+        if not _vcan_ready(args.channel) or os.environ.get(NETNS_ENV):
+            return None  # user-mode Linux next: its own loopback gets the route
+        if not host_has_multicast_route(args.telemetry):
+            raise BusError(f"--telemetry: LCM {args.telemetry} over the host's vcan0 needs "
+                           "a multicast route on the host, got none (hil never adds one "
+                           "there); use --interface udp_multicast, or a kernel without CAN")
+        print("hil: LCM telemetry on the host's multicast route (vcan0 is in the host's "
+              "network namespace)", flush=True)
+        os.environ[NETNS_ENV] = "host"
+        return None
+    return run_in_namespace(argv, args.telemetry, cwd=os.getcwd())
+
+
+LCM_LOG = "run.lcmlog"
+RUN_END_CHANNEL = "HIL_RUN_END"
+LOGGER_FLUSH_MS = 100
+
+
+def _start_lcm_logger(args, out: Path) -> subprocess.Popen:
+    """LCM's own ``lcm-logger`` on the run's URL, writing ``DIR/run.lcmlog`` (every HIL_*
+    channel: the control bus when it is LCM, and the telemetry)."""
+    from hil.lcm_cmd import lcm_tool
+
+    (out / LCM_LOG).unlink(missing_ok=True)
+    p = subprocess.Popen([lcm_tool("lcm-logger"), "--lcm-url", args.telemetry, "--channel",
+                          "HIL_.*", "--flush-interval", str(LOGGER_FLUSH_MS), "--force",
+                          "--quiet", str(out / LCM_LOG)],
+                         stdout=subprocess.DEVNULL, stderr=(out / "lcm-logger.log").open("w"))
+    t_end = time.monotonic() + 10
+    while not (out / LCM_LOG).exists():  # subscribed once its file is open
+        if p.poll() is not None or time.monotonic() > t_end:
+            raise BusError(f"lcm-logger did not start (exit {p.poll()}); see "
+                           f"{out / 'lcm-logger.log'}")
+        time.sleep(0.02)
+    return p
+
+
+def _stop_lcm_logger(p: subprocess.Popen, url: str) -> None:
+    """Stop lcm-logger with every message of the run in its file. lcm-logger flushes its
+    file when it writes an event a flush interval after the last flush, and does not flush
+    what it holds on SIGINT: so a marker (``HIL_RUN_END``, no payload) goes out after the
+    interval, then one more after it, and only then the signal."""
+    from bus.lcm_transport import open_lcm
+
+    lc = open_lcm(url)
+    for _ in range(2):
+        time.sleep(1.2 * LOGGER_FLUSH_MS / 1000)
+        lc.publish(RUN_END_CHANNEL, b"")
+    time.sleep(0.1)
+    if p.poll() is None:
+        p.send_signal(signal.SIGINT)
+        try:
+            p.wait(5)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
 
 
 def _node_cmd(node: str, scenario: Path, out: Path, args,
@@ -225,6 +299,8 @@ def _node_cmd(node: str, scenario: Path, out: Path, args,
            "--channel", args.channel]
     if start_after is not None:
         cmd += ["--start-after", str(start_after)]
+    if getattr(args, "telemetry", None):
+        cmd += ["--telemetry-url", args.telemetry]
     if getattr(args, "rt_priority", False):
         cmd.append("--rt-priority")
     return cmd
@@ -265,6 +341,7 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         (out / name).unlink(missing_ok=True)
     monitor = _monitor(args, out / "bus.log")
     monitor.start()
+    logger = _start_lcm_logger(args, out) if getattr(args, "lcm_log", False) else None
     if args.interface == "lcm":
         from hil.netns import write_pid
 
@@ -331,6 +408,8 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         for p in procs.values():
             _stop(p)
         monitor.stop()
+        if logger is not None:
+            _stop_lcm_logger(logger, args.telemetry)
         for f in logs.values():
             f.close()
     io_errors = [monitor.error] if monitor.error else []
@@ -356,6 +435,8 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                    "lcm_bytes_logged": monitor.lcm_bytes,
                    "network": os.environ.get("HIL_LCM_NETNS", "host")}
                   if args.interface == "lcm" else {"bus_kind": "can"}),
+               "telemetry": getattr(args, "telemetry", None),
+               **({"lcm_log": LCM_LOG} if getattr(args, "lcm_log", False) else {}),
                "exit_codes": {k: p.returncode for k, p in procs.items()},
                "timing": timing_summary(plant_records, flight_records,
                                         sc.vehicle.timing.tick_s),
@@ -472,6 +553,7 @@ def _cmd_run(args) -> int:
         argv += ["--kill-flight-at", str(args.kill_flight_at)]
     if args.rt_priority:
         argv.append("--rt")
+    argv += _lcm_argv(args)
     rc = maybe_in_netns(args, argv)
     if rc is None:
         rc = maybe_in_uml(args, argv)
@@ -507,6 +589,7 @@ def _cmd_up(args) -> int:
             "--interface", args.interface, "--channel", args.channel]
     if args.rt_priority:
         argv.append("--rt")
+    argv += _lcm_argv(args)
     rc = maybe_in_netns(args, argv)
     if rc is None:
         rc = maybe_in_uml(args, argv)
@@ -529,8 +612,14 @@ def _bus_args(p) -> None:
                    help="the bus: can (python-can --interface/--channel, the default) or lcm "
                         "(docs/lcm.md; default: the scenario's bus:, else can)")
     p.add_argument("--lcm-url", metavar="URL",
-                   help="LCM provider with --bus lcm (default "
+                   help="LCM provider with --bus lcm, --telemetry or --lcm-log (default "
                         "udpm://239.255.76.67:7667?ttl=0, in a private network namespace)")
+    p.add_argument("--telemetry", nargs="?", const=True, default=None, metavar="URL",
+                   help="publish truth and the flight's view per tick on LCM (HIL_TRUTH, "
+                        "HIL_FLIGHT_VIEW; always on with --bus lcm) whatever the bus")
+    p.add_argument("--lcm-log", action="store_true",
+                   help="record every HIL_* LCM channel with lcm-logger to DIR/run.lcmlog "
+                        "(turns --telemetry on)")
 
 
 def register(sub) -> None:

@@ -128,13 +128,59 @@ def _same_outcome(a: dict, b: dict) -> None:
         assert a[key] == b[key], key
 
 
+def _log(path: Path) -> dict[str, list]:
+    """The events of an LCM log by channel, read with LCM's own reader."""
+    import lcm
+
+    out: dict[str, list] = {}
+    for ev in lcm.EventLog(str(path), "r"):
+        out.setdefault(ev.channel, []).append(ev)
+    return out
+
+
+def _check_telemetry(run: Path, summary: dict) -> None:
+    """run.lcmlog (written by lcm-logger) holds one truth_t and one flight_view_t per tick,
+    equal to the records; the detection is where flight.jsonl has it."""
+    from hil.hil_telemetry import flight_view_t, truth_t
+
+    log = _log(run / "run.lcmlog")
+    plant = [json.loads(x) for x in (run / "plant.jsonl").read_text().splitlines()]
+    plant = [r for r in plant if not r.get("final")]
+    flight = [json.loads(x) for x in (run / "flight.jsonl").read_text().splitlines()]
+    truth = [truth_t.decode(e.data) for e in log["HIL_TRUTH"]]
+    view = [flight_view_t.decode(e.data) for e in log["HIL_FLIGHT_VIEW"]]
+    assert [m.tick for m in truth] == [r["tick"] for r in plant]
+    assert [m.fuel_kg for m in truth] == [r["fuel_kg"] for r in plant]
+    assert [m.att_err_deg for m in truth] == [r["att_err_deg"] for r in plant]
+    assert truth[-1].fuel_kg == summary["fuel_kg"]
+    assert [m.tick for m in view] == [r["tick"] for r in flight]
+    got = [(m.tick, m.detection_type, m.detection_thruster) for m in view if m.detection_type]
+    want = [(r["tick"], r["detection"]["type"], r["detection"]["thruster"]) for r in flight
+            if r.get("detection")]
+    assert got == want and got
+    names = dict(zip(view[5].names, view[5].values, strict=True))
+    assert names["flight/omega_meas_deg_s/x"] == \
+        flight[5]["series"]["flight/omega_meas_deg_s"]["x"]
+
+
 def test_lockstep_over_lcm_equals_lockstep_over_can(url, tmp_path):
     """S000-stuck in lockstep over LCM and over python-can's udp_multicast (the CAN
-    interface the tests use between processes): the same detections, truth and fuel."""
-    lcm_s = _run([str(SCENARIO), "--bus", "lcm", "--lcm-url", url], tmp_path / "lcm")
+    interface the tests use between processes): the same detections, truth and fuel. Both
+    write run.lcmlog with lcm-logger: the LCM run its control channels and telemetry, the
+    CAN run its telemetry alone."""
+    lcm_s = _run([str(SCENARIO), "--bus", "lcm", "--lcm-url", url, "--lcm-log"],
+                 tmp_path / "lcm")
     env = dict(os.environ, CAN_CONFIG=json.dumps({"port": _free_port()}))
     can_s = _run([str(SCENARIO), "--interface", "udp_multicast", "--channel",
-                  "239.74.163.2"], tmp_path / "can", env=env)
+                  "239.74.163.2", "--lcm-log", "--lcm-url",
+                  f"udpm://239.255.76.67:{_free_port()}?ttl=0"], tmp_path / "can", env=env)
+    _check_telemetry(tmp_path / "lcm", lcm_s)
+    _check_telemetry(tmp_path / "can", can_s)
+    ticks = lcm_s["ticks"]
+    lcm_log, can_log = _log(tmp_path / "lcm/run.lcmlog"), _log(tmp_path / "can/run.lcmlog")
+    for ch in ("HIL_SYNC", "HIL_GYRO", "HIL_THR_CMD", "HIL_FDIR_STATUS"):
+        assert len(lcm_log[ch]) == ticks, ch
+    assert set(can_log) == {"HIL_TRUTH", "HIL_FLIGHT_VIEW", "HIL_RUN_END"}
     assert lcm_s["bus_kind"] == "lcm" and can_s["bus_kind"] == "can"
     assert lcm_s["detections"] and lcm_s["detections"][0]["thruster"] == "X+"
     _same_outcome(lcm_s, can_s)
