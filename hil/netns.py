@@ -77,7 +77,9 @@ def run_in_namespace(argv: list[str], url: str, cwd: str | None = None) -> int |
     be made). BusError when LCM cannot run at all."""
     if not needs_namespace(url):
         return None
-    if os.environ.get("HIL_INSIDE_UML"):
+    from hil.uml import in_uml
+
+    if os.environ.get("HIL_INSIDE_UML") or in_uml():
         uml_route()
         os.environ[NETNS_ENV] = "user-mode Linux loopback"
         print("hil: LCM over udpm on user-mode Linux's own loopback (multicast route added "
@@ -140,7 +142,12 @@ def exec_in_namespace(cmd: list[str]) -> int:
     if not cmd:
         raise BusError("netns exec: expected a command after --, got none")
     env = dict(os.environ, **{REQUIRE_LCM_ENV: "1"})
-    if os.environ.get(NETNS_ENV):
+    from hil.uml import in_uml
+
+    if not os.environ.get(NETNS_ENV) and in_uml():  # the instance's own kernel and loopback
+        uml_route()
+        env[NETNS_ENV] = "user-mode Linux loopback"
+    if env.get(NETNS_ENV):
         return subprocess.run(cmd, env=env).returncode
     prefix = _unshare_prefix()
     if prefix is None:
