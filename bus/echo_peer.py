@@ -41,8 +41,13 @@ def expected_command(tick: int, n_thrusters: int = N_THRUSTERS) -> tuple[tuple[i
 
 
 def run_lockstep(
-    port: Port, ticks: int, corrupt_tick: int | None = None, idle_s: float = 5.0
+    port: Port, ticks: int, corrupt_tick: int | None = None, idle_s: float = 5.0,
+    whole_sets: bool = False,
 ) -> dict:
+    """Answer SYNC(n) with THR_CMD(n) until tick ``ticks - 1``. At ``corrupt_tick`` frame 2
+    of the command goes out with a flipped bit and then intact (CAN); with ``whole_sets``
+    (LCM, where a set travels as one message) the set goes with the bad frame, then the
+    command again with the next counters."""
     fl = FlightLockstep()
     last_rx = time.monotonic()
     replied = 0
@@ -65,7 +70,11 @@ def run_lockstep(
                         bad = bytearray(fr.data)
                         bad[4] ^= 0x10
                         port.send_frame(Frame(fr.arbitration_id, bytes(bad)))
+                        if whole_sets:  # LCM carries sets: this one goes with the bad frame
+                            continue
                     port.send_frame(fr)
+                if whole_sets and ev.tick == corrupt_tick:
+                    port.send(cmd)  # then the whole command again, with the next counters
                 replied += 1
                 if ev.tick >= ticks - 1:
                     done = True
@@ -110,6 +119,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--corrupt-tick", type=int, default=None)
     ap.add_argument("--idle-s", type=float, default=5.0)
     args = ap.parse_args(argv)
+    if args.interface == "lcm":  # LCM: the channel is the provider URL (docs/lcm.md)
+        from bus.lcm_transport import LcmPort
+
+        port = LcmPort(args.channel)
+        print("ready", flush=True)
+        try:
+            result = run_lockstep(port, args.ticks, args.corrupt_tick, args.idle_s,
+                                  whole_sets=True)
+        finally:
+            port.close()
+        print(json.dumps(result, sort_keys=True), flush=True)
+        return 0
     bus = open_bus(BusConfig(interface=args.interface, channel=args.channel))
     print("ready", flush=True)
     try:

@@ -178,6 +178,30 @@ class SafetyCfg(_Model):
     recover_ticks: int = Field(default=3, ge=1, le=50, strict=True)
 
 
+LCM_URL_PATTERN = r"^(udpm|tcpq)://[^\s]+$"
+
+
+class BusCfg(_Model):
+    """Which bus the run uses (docs/lcm.md); ``hil run --bus`` overrides it::
+
+        bus: {kind: lcm, url: "udpm://239.255.76.67:7667?ttl=0"}
+
+    ``kind``: ``can`` (the python-can interface of ``--interface/--channel``, vcan0 by
+    default) or ``lcm``; ``url``: the LCM provider (``udpm://`` or ``tcpq://``: the processes
+    are separate, so ``memq://`` cannot carry a run), only with ``kind: lcm``.
+    """
+
+    kind: Literal["can", "lcm"]
+    url: str | None = Field(default=None, pattern=LCM_URL_PATTERN, max_length=200)
+
+    @model_validator(mode="after")
+    def _url_only_for_lcm(self) -> BusCfg:
+        if self.kind == "can" and self.url is not None:
+            raise _FieldError("url", "no url with kind can (the LCM provider is for kind lcm)",
+                              self.url)
+        return self
+
+
 class ScenarioCfg(_Model):
     """A scenario file (``configs/scenarios/*.yaml``; the README shows one in full).
 
@@ -207,4 +231,5 @@ class ScenarioCfg(_Model):
     faults: list[FaultSpec] = []
     expect: ExpectationsCfg | None = None
     safety: SafetyCfg = SafetyCfg()
+    bus: BusCfg | None = None
 

@@ -40,6 +40,7 @@ class NodeSettings:
     rt_priority: bool = False
     sched: Literal["auto", "other", "batch"] = "auto"
     bus_log: bool = False
+    telemetry_url: str | None = None
     start_after: str | None = None
     sched_note: str | None = None
     rt_event: str | None = None
@@ -112,6 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scheduler policy without --rt-priority (auto: plant SCHED_BATCH, "
                         "flight SCHED_OTHER, see hil.process_policy.set_policy)")
     p.add_argument("--bus-log", action="store_true", help="write NODE.bus.log (candump format)")
+    p.add_argument("--telemetry-url", metavar="URL",
+                   help="publish each tick's record on LCM at URL (HIL_TRUTH from the plant, "
+                        "HIL_FLIGHT_VIEW from the flight; docs/lcm.md)")
     p.add_argument("--start-after", metavar="FILE",
                    help="set up, then wait until FILE exists before the first tick (hil run "
                         "starts both processes at once and gives the plant the flight's "

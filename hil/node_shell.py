@@ -62,12 +62,19 @@ def lockstep_receiver(reply_timeout_s: float) -> Receiver:
 
 
 def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
-    """The node's CAN port (lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log``
-    when ``settings.bus_log``)."""
+    """The node's port: CAN, or LCM for interface ``lcm`` (``bus.lcm_transport.LcmPort``).
+
+    Lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log`` when
+    ``settings.bus_log``."""
     s = settings
+    receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
+    if s.interface == "lcm":  # LCM: the channel is the provider URL (docs/lcm.md)
+        from bus.lcm_transport import LcmPort
+
+        logger = BusLogger(out / f"{name}.bus.log", channel="lcm") if s.bus_log else None
+        return LcmPort(s.channel, receiver=receiver, logger=logger)
     cfg = BusConfig(interface=s.interface, channel=s.channel)
     logger = BusLogger(out / f"{name}.bus.log", channel=s.channel) if s.bus_log else None
-    receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
     return Port(open_bus(cfg), receiver=receiver, logger=logger)
 
 
@@ -97,10 +104,14 @@ def first_record(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
 
 def write_record(shell, rec: dict) -> None:
     """A shell's tick record out: the first record's extras merged in once, one line written
-    (``JsonlWriter``), the tick's events reset, and the garbage collector's slot after it."""
+    (``JsonlWriter``), published as telemetry when the shell has a ``telemetry`` publisher,
+    the tick's events reset, and the garbage collector's slot after it."""
     if shell.first:
         rec.update(shell.first)
         shell.first = {}
     shell.rec.write(rec)
+    telemetry = getattr(shell, "telemetry", None)
+    if telemetry is not None and not rec.get("final"):
+        telemetry.publish(rec)  # HIL_TRUTH / HIL_FLIGHT_VIEW on LCM (hil.telemetry)
     shell.events = []
     idle_gc(rec["tick"])

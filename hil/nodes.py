@@ -77,6 +77,18 @@ def main(argv: list[str] | None = None) -> int:
     else:
         settings = replace(settings, sched_note=set_policy(settings.node, settings.sched))
     shell = (PlantShell if settings.node == "plant" else FlightShell)(sc, port, out, settings)
+    if settings.telemetry_url:
+        from hil.telemetry import Telemetry
+
+        try:
+            shell.telemetry = Telemetry(settings.node, settings.telemetry_url,
+                                        lc=getattr(port, "lc", None)
+                                        if getattr(port, "url", None) == settings.telemetry_url
+                                        else None)
+        except HilError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            port.close()
+            return 2
     quiet_gc()
     (out / f"{settings.node}.ready").write_text(str(os.getpid()))
     if settings.start_after and not wait_for_file(Path(settings.start_after), stop):

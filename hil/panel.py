@@ -83,7 +83,12 @@ def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float)
     """
     from bus.transport import BusConfig, Port, open_bus
 
-    port = Port(open_bus(BusConfig(interface=interface, channel=channel)))
+    if interface == "lcm":  # the channel is the LCM URL (docs/lcm.md)
+        from bus.lcm_transport import LcmPort
+
+        port: Port = LcmPort(channel)
+    else:
+        port = Port(open_bus(BusConfig(interface=interface, channel=channel)))
     try:
         port.send(cmd)
         now = time.monotonic()
@@ -131,7 +136,33 @@ def resolve_vehicle(vehicle: str | None, run: Path) -> tuple[VehicleCfg, str]:
     return v, f"the plant in {run}"
 
 
+def _lcm_route(args) -> int | None:
+    """``--bus lcm``: the URL as the channel, and the run's network namespace joined (the
+    ``hil up`` over LCM runs in a private one, ``hil.netns``); None: go on here."""
+    from bus.lcm_transport import DEFAULT_URL
+    from hil.netns import join_run_namespace
+
+    if args.bus != "lcm":
+        if args.lcm_url is not None:
+            raise UsageError(f"fault: --lcm-url: expected it with --bus lcm, got "
+                             f"{args.lcm_url!r} with the can bus")
+        return None
+    args.interface, args.channel = "lcm", args.lcm_url or DEFAULT_URL
+    argv = ["fault", args.action, "--run", str(Path(args.run).resolve()),
+            "--timeout", str(args.timeout), "--interface", "lcm", "--channel", args.channel]
+    for flag, v in (("--thruster", args.thruster), ("--type", args.type),
+                    ("--fraction", args.fraction), ("--at", args.at),
+                    ("--clear-at", args.clear_at), ("--vehicle", args.vehicle)):
+        if v is not None:
+            argv += [flag, str(v)]
+    return join_run_namespace(Path(args.run), argv)
+
+
 def _cmd(args) -> int:
+    if args.action != "list":
+        rc = _lcm_route(args)
+        if rc is not None:
+            return rc
     run = Path(args.run)
     vehicle, source = resolve_vehicle(args.vehicle, run)
     if args.action == "list":
@@ -196,4 +227,8 @@ def register(sub) -> None:
                    help="seconds to wait for FAULT_ACK")
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")
+    p.add_argument("--bus", choices=("can", "lcm"), default="can",
+                   help="can (--interface/--channel) or lcm: the running `hil up --bus lcm` "
+                        "in --run is reached in its private network namespace")
+    p.add_argument("--lcm-url", metavar="URL", help="LCM provider (default that of hil up)")
     p.set_defaults(func=_cmd)

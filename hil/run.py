@@ -128,6 +128,170 @@ class BusMonitor(threading.Thread):
         self.bus.shutdown()
 
 
+class LcmMonitor(threading.Thread):
+    """``bus.log`` of an LCM run: every HIL_* message of the bus as the CAN frames it stands
+    for (candump format, decodable with ``bus/hil.dbc``), plus the LCM bytes seen."""
+
+    def __init__(self, url: str, path: Path) -> None:
+        super().__init__(daemon=True)
+        import can
+
+        from bus.lcm_schema import by_channel
+        from bus.lcm_transport import open_lcm
+
+        self.lc = open_lcm(url)
+        self.structs = by_channel()
+        self.writer = can.CanutilsLogWriter(str(path), channel="lcm")
+        self.frames = 0
+        self.lcm_messages = 0
+        self.lcm_bytes = 0
+        self.error: str | None = None
+        self._halt = threading.Event()
+        self.lc.subscribe(r"HIL_.*", self._on)
+
+    def _on(self, channel: str, data: bytes) -> None:
+        from bus.lcm_schema import decode_struct, to_frames
+        from bus.transport import to_can_message
+
+        st = self.structs.get(channel)
+        if st is None:
+            return
+        self.lcm_messages += 1
+        self.lcm_bytes += len(data)
+        if self.error is not None:
+            return
+        try:
+            frames = to_frames(st, decode_struct(st, data))
+        except (ValueError, KeyError, TypeError, OverflowError):
+            return  # the nodes count it; the log keeps what is frames
+        t = time.time()
+        try:
+            for fr in frames:
+                self.writer.on_message_received(to_can_message(fr, t))
+                self.frames += 1
+        except OSError as exc:
+            self.error = f"bus.log: {exc.strerror or exc}"
+
+    def run(self) -> None:
+        while not self._halt.is_set():
+            self.lc.handle_timeout(100)
+
+    def stop(self) -> None:
+        self._halt.set()
+        self.join(2.0)
+        try:
+            self.writer.stop()
+        except OSError as exc:
+            self.error = self.error or f"bus.log: {exc.strerror or exc}"
+
+
+def _monitor(args, path: Path):
+    if args.interface == "lcm":
+        return LcmMonitor(args.channel, path)
+    return BusMonitor(args.interface, args.channel, path)
+
+
+def resolve_bus(args, sc=None) -> None:
+    """``--bus`` / the scenario's ``bus:`` -> ``args.interface`` / ``args.channel`` (LCM is
+    carried as interface ``lcm`` with the URL as its channel, through every layer)."""
+    from bus.lcm_transport import DEFAULT_URL
+
+    kind = getattr(args, "bus", None)
+    url = getattr(args, "lcm_url", None)
+    cfg_bus = sc.cfg.bus if sc is not None else None
+    if kind is None and cfg_bus is not None:
+        kind = cfg_bus.kind
+        url = url or cfg_bus.url
+    if kind == "lcm":
+        args.interface, args.channel = "lcm", url or DEFAULT_URL
+    elif url is not None and not (getattr(args, "telemetry", None)
+                                  or getattr(args, "lcm_log", False)):
+        raise UsageError(f"--lcm-url: expected it with --bus lcm, --telemetry or --lcm-log, "
+                         f"got {url!r} with the {kind or 'can'} bus alone")
+    # Telemetry (hil.telemetry): always over an LCM bus, on request over CAN.
+    if args.interface == "lcm":
+        args.telemetry = args.channel
+    elif getattr(args, "telemetry", None) or getattr(args, "lcm_log", False):
+        args.telemetry = url or (args.telemetry if isinstance(getattr(args, "telemetry", None),
+                                                              str) else DEFAULT_URL)
+    else:
+        args.telemetry = None
+
+
+def _lcm_argv(args) -> list[str]:
+    """The telemetry flags for a re-run (namespace, user-mode Linux)."""
+    out = ["--telemetry", args.telemetry] if args.telemetry and args.interface != "lcm" else []
+    return out + (["--lcm-log"] if getattr(args, "lcm_log", False) else [])
+
+
+def maybe_in_netns(args, argv: list[str]) -> int | None:
+    """Re-run this command in a private network namespace for LCM over udpm (hil.netns):
+    the LCM bus, or the telemetry of a CAN run. SocketCAN's vcan0 lives in the host's (or
+    user-mode Linux's) namespace, so a SocketCAN run keeps its namespace: inside user-mode
+    Linux the route goes on the instance's loopback; natively the host needs its own."""
+    if args.telemetry is None:
+        return None
+    from hil.netns import NETNS_ENV, host_has_multicast_route, run_in_namespace
+
+    if args.interface == "socketcan" and not os.environ.get(INSIDE_UML_ENV):
+        if not _vcan_ready(args.channel) or os.environ.get(NETNS_ENV):
+            return None  # user-mode Linux next: its own loopback gets the route
+        if not host_has_multicast_route(args.telemetry):
+            raise BusError(f"--telemetry: LCM {args.telemetry} over the host's vcan0 needs "
+                           "a multicast route on the host, got none (hil never adds one "
+                           "there); use --interface udp_multicast, or a kernel without CAN")
+        print("hil: LCM telemetry on the host's multicast route (vcan0 is in the host's "
+              "network namespace)", flush=True)
+        os.environ[NETNS_ENV] = "host"
+        return None
+    return run_in_namespace(argv, args.telemetry, cwd=os.getcwd())
+
+
+LCM_LOG = "run.lcmlog"
+RUN_END_CHANNEL = "HIL_RUN_END"
+LOGGER_FLUSH_MS = 100
+
+
+def _start_lcm_logger(args, out: Path) -> subprocess.Popen:
+    """LCM's own ``lcm-logger`` on the run's URL, writing ``DIR/run.lcmlog`` (every HIL_*
+    channel: the control bus when it is LCM, and the telemetry)."""
+    from hil.lcm_cmd import lcm_tool
+
+    (out / LCM_LOG).unlink(missing_ok=True)
+    p = subprocess.Popen([lcm_tool("lcm-logger"), "--lcm-url", args.telemetry, "--channel",
+                          "HIL_.*", "--flush-interval", str(LOGGER_FLUSH_MS), "--force",
+                          "--quiet", str(out / LCM_LOG)],
+                         stdout=subprocess.DEVNULL, stderr=(out / "lcm-logger.log").open("w"))
+    t_end = time.monotonic() + 10
+    while not (out / LCM_LOG).exists():  # subscribed once its file is open
+        if p.poll() is not None or time.monotonic() > t_end:
+            raise BusError(f"lcm-logger did not start (exit {p.poll()}); see "
+                           f"{out / 'lcm-logger.log'}")
+        time.sleep(0.02)
+    return p
+
+
+def _stop_lcm_logger(p: subprocess.Popen, url: str) -> None:
+    """Stop lcm-logger with every message of the run in its file. lcm-logger flushes its
+    file when it writes an event a flush interval after the last flush, and does not flush
+    what it holds on SIGINT: so a marker (``HIL_RUN_END``, no payload) goes out after the
+    interval, then one more after it, and only then the signal."""
+    from bus.lcm_transport import open_lcm
+
+    lc = open_lcm(url)
+    for _ in range(2):
+        time.sleep(1.2 * LOGGER_FLUSH_MS / 1000)
+        lc.publish(RUN_END_CHANNEL, b"")
+    time.sleep(0.1)
+    if p.poll() is None:
+        p.send_signal(signal.SIGINT)
+        try:
+            p.wait(5)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
 def _node_cmd(node: str, scenario: Path, out: Path, args,
               start_after: Path | None = None) -> list[str]:
     cmd = [sys.executable, "-m", "hil.nodes", node, "--scenario", str(scenario),
@@ -135,6 +299,8 @@ def _node_cmd(node: str, scenario: Path, out: Path, args,
            "--channel", args.channel]
     if start_after is not None:
         cmd += ["--start-after", str(start_after)]
+    if getattr(args, "telemetry", None):
+        cmd += ["--telemetry-url", args.telemetry]
     if getattr(args, "rt_priority", False):
         cmd.append("--rt-priority")
     return cmd
@@ -171,10 +337,15 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
     n_ticks = int(round(sc.cfg.duration_s / sc.vehicle.timing.tick_s))
     out.mkdir(parents=True, exist_ok=True)
     for name in ("plant.jsonl", "flight.jsonl", "run.rrd", "summary.json", "plant.ready",
-                 "flight.ready", "bus.log"):
+                 "flight.ready", "bus.log", "netns.pid"):
         (out / name).unlink(missing_ok=True)
-    monitor = BusMonitor(args.interface, args.channel, out / "bus.log")
+    monitor = _monitor(args, out / "bus.log")
     monitor.start()
+    logger = _start_lcm_logger(args, out) if getattr(args, "lcm_log", False) else None
+    if args.interface == "lcm":
+        from hil.netns import write_pid
+
+        write_pid(out)
     # The rerun recording is built from the JSON lines after the run (``build_rrd``): logging it
     # live cost the supervisor more CPU than the flight software used, in the middle of the
     # lockstep loop, and importing the SDK delayed the start. Live only when a viewer is asked.
@@ -237,6 +408,8 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         for p in procs.values():
             _stop(p)
         monitor.stop()
+        if logger is not None:
+            _stop_lcm_logger(logger, args.telemetry)
         for f in logs.values():
             f.close()
     io_errors = [monitor.error] if monitor.error else []
@@ -257,10 +430,19 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         extra={"wall_s": round(wall, 3), "sim_s": sim,
                **speed_figures(plant_records, sim, wall, t_wall),
                "bus_frames_logged": monitor.frames,
+               **({"bus_kind": "lcm", "lcm_url": args.channel,
+                   "lcm_messages_logged": monitor.lcm_messages,
+                   "lcm_bytes_logged": monitor.lcm_bytes,
+                   "network": os.environ.get("HIL_LCM_NETNS", "host")}
+                  if args.interface == "lcm" else {"bus_kind": "can"}),
+               "telemetry": getattr(args, "telemetry", None),
+               **({"lcm_log": LCM_LOG} if getattr(args, "lcm_log", False) else {}),
                "exit_codes": {k: p.returncode for k, p in procs.items()},
                "timing": timing_summary(plant_records, flight_records,
                                         sc.vehicle.timing.tick_s),
-               "where": "user-mode Linux" if os.environ.get(INSIDE_UML_ENV) else "native"},
+               "where": ("user-mode Linux" if os.environ.get(INSIDE_UML_ENV) else "native")
+               + (f", LCM: {os.environ.get('HIL_LCM_NETNS', 'host')} network"
+                  if args.interface == "lcm" else "")},
         expected_ticks=None if endless else n_ticks,
         exit_codes={k: p.returncode for k, p in procs.items()}, killed=killed,
         interrupted=interrupted and not endless, io_error="; ".join(io_errors) or None,
@@ -362,6 +544,7 @@ def _batch_policy() -> None:
 def _cmd_run(args) -> int:
     scenario = Path(args.scenario)
     sc = load_scenario(scenario)  # config errors exit 2 before anything starts
+    resolve_bus(args, sc)
     out = Path(args.out or Path("runs") / sc.cfg.name)
     check_writable(out)  # before user-mode Linux boots
     argv = ["run", str(scenario.resolve()), "--mode", args.mode, "--out", str(out.resolve()),
@@ -370,7 +553,10 @@ def _cmd_run(args) -> int:
         argv += ["--kill-flight-at", str(args.kill_flight_at)]
     if args.rt_priority:
         argv.append("--rt")
-    rc = maybe_in_uml(args, argv)
+    argv += _lcm_argv(args)
+    rc = maybe_in_netns(args, argv)
+    if rc is None:
+        rc = maybe_in_uml(args, argv)
     if rc is not None:
         return rc
     _batch_policy()
@@ -383,8 +569,9 @@ def _cmd_up(args) -> int:
     check_writable(Path(args.out or "runs/up"))  # before anything is made or boots
     if args.scenario:
         scenario = Path(args.scenario).resolve()
-        load_scenario(scenario)  # config errors exit 2 before anything starts
+        resolve_bus(args, load_scenario(scenario))  # config errors exit 2 before anything
     else:
+        resolve_bus(args)
         from hil.config import VEHICLE_DIR
 
         if not (VEHICLE_DIR / f"{args.vehicle}.yaml").exists():
@@ -402,7 +589,10 @@ def _cmd_up(args) -> int:
             "--interface", args.interface, "--channel", args.channel]
     if args.rt_priority:
         argv.append("--rt")
-    rc = maybe_in_uml(args, argv)
+    argv += _lcm_argv(args)
+    rc = maybe_in_netns(args, argv)
+    if rc is None:
+        rc = maybe_in_uml(args, argv)
     if rc is not None:
         return rc
     _batch_policy()
@@ -418,6 +608,18 @@ def _bus_args(p) -> None:
     p.add_argument("--interface", default="socketcan",
                    help="python-can interface (default socketcan; udp_multicast, pcan, ...)")
     p.add_argument("--channel", default="vcan0", help="bus channel (default vcan0)")
+    p.add_argument("--bus", choices=("can", "lcm"),
+                   help="the bus: can (python-can --interface/--channel, the default) or lcm "
+                        "(docs/lcm.md; default: the scenario's bus:, else can)")
+    p.add_argument("--lcm-url", metavar="URL",
+                   help="LCM provider with --bus lcm, --telemetry or --lcm-log (default "
+                        "udpm://239.255.76.67:7667?ttl=0, in a private network namespace)")
+    p.add_argument("--telemetry", nargs="?", const=True, default=None, metavar="URL",
+                   help="publish truth and the flight's view per tick on LCM (HIL_TRUTH, "
+                        "HIL_FLIGHT_VIEW; always on with --bus lcm) whatever the bus")
+    p.add_argument("--lcm-log", action="store_true",
+                   help="record every HIL_* LCM channel with lcm-logger to DIR/run.lcmlog "
+                        "(turns --telemetry on)")
 
 
 def register(sub) -> None:

@@ -4,7 +4,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-DEB_PACKAGES=(user-mode-linux busybox-static can-utils iproute2 kmod)
+# util-linux: unshare and nsenter, for the private network namespace of LCM runs (hil.netns).
+DEB_PACKAGES=(user-mode-linux busybox-static can-utils iproute2 kmod util-linux)
 missing=()
 for p in "${DEB_PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || missing+=("$p")

@@ -14,21 +14,20 @@ import os
 import pytest
 
 REQUIRE_VCAN_ENV = "HIL_REQUIRE_VCAN"
+REQUIRE_LCM_ENV = "HIL_REQUIRE_LCM"  # set by `hil netns exec`: a skipped `lcm` test fails
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     outcome = yield
     rep = outcome.get_result()
-    if (
-        rep.skipped
-        and not hasattr(rep, "wasxfail")
-        and os.environ.get(REQUIRE_VCAN_ENV) == "1"
-        and item.get_closest_marker("vcan") is not None
-    ):
+    required = [m for m, env in (("vcan", REQUIRE_VCAN_ENV), ("lcm", REQUIRE_LCM_ENV))
+                if os.environ.get(env) == "1" and item.get_closest_marker(m) is not None]
+    if rep.skipped and not hasattr(rep, "wasxfail") and required:
         reason = rep.longrepr[2] if isinstance(rep.longrepr, tuple) else str(rep.longrepr)
         rep.outcome = "failed"
         rep.longrepr = (
-            f"{item.nodeid}: expected to run ({REQUIRE_VCAN_ENV}=1: vcan0 is required), "
+            f"{item.nodeid}: expected to run ({required[0]} is required: "
+            f"{REQUIRE_VCAN_ENV if required[0] == 'vcan' else REQUIRE_LCM_ENV}=1), "
             f"got skipped: {reason}"
         )
