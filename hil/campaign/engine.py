@@ -27,6 +27,7 @@ the rows of one campaign; raising ``runs`` in the file extends it.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import logging
 import os
@@ -361,6 +362,38 @@ def run_campaign(c: Campaign, out: Path, *, workers: int | None = None,
                  kind: str = "campaign", progress: bool = True,
                  on_row: Callable[[dict[str, Any]], None] | None = None) -> Outcome:
     """Compute every run of ``c`` that has no row in ``out`` yet (module doc)."""
+    out.mkdir(parents=True, exist_ok=True)
+    with _folder_lock(out):
+        return _run_campaign(c, out, workers=workers, scheduler=scheduler, record=record,
+                             kind=kind, progress=progress, on_row=on_row)
+
+
+LOCK = ".lock"
+
+
+@contextlib.contextmanager
+def _folder_lock(out: Path) -> Iterator[None]:
+    """One campaign writes a results folder at a time (two would append the same runs twice):
+    an exclusive lock on ``DIR/.lock`` for the whole computation, released by the kernel if
+    the process dies."""
+    fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            held = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "?"
+            raise CampaignError(str(out), "", "a results folder no other campaign is writing",
+                                Bare(f"one held by process {held}")) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)
+
+
+def _run_campaign(c: Campaign, out: Path, *, workers: int | None, scheduler: str | None,
+                  record: bool, kind: str, progress: bool,
+                  on_row: Callable[[dict[str, Any]], None] | None) -> Outcome:
     rows = prepare_folder(c, out, kind)
     done = {r["run"] for r in rows}
     todo = [k for k in range(c.runs) if k not in done]

@@ -180,3 +180,22 @@ def test_ctrl_c_stops_cleanly_and_keeps_what_finished(tmp_path: Path, ci_campaig
         raise AssertionError("processes of the campaign's group still alive after 20 s")
     assert table(read_rows(rows)) == [r for r in reference if r["run"] in
                                       {x["run"] for x in read_rows(rows)}]
+
+
+def test_a_folder_another_campaign_is_writing_is_refused(tmp_path: Path,
+                                                          ci_campaign_path: Path) -> None:
+    """Two campaigns on one folder would append the same runs twice: the second is refused
+    with one line, and the folder is usable once the first lets go."""
+    import fcntl
+
+    from hil.campaign.engine import LOCK
+    from hil.campaign.file import CampaignError
+
+    c = load_campaign(ci_campaign_path)
+    with (tmp_path / LOCK).open("w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        held.write("4242\n")
+        held.flush()
+        with pytest.raises(CampaignError, match="held by process 4242"):
+            run_campaign(c, tmp_path, workers=1, progress=False)
+    assert not (tmp_path / "runs.jsonl").exists()
