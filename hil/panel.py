@@ -14,7 +14,11 @@ default) for FAULT_CMD and FAULT_ACK, and through the run folder (``--run``, def
 record in ``RUN/plant.jsonl`` names its vehicle (``config``, see ``hil.nodes``), so thruster
 names are checked against the vehicle actually flying; ``--vehicle`` overrides it (and is
 needed when no run folder is there). Where the kernel has no CAN, ``hil up`` runs inside
-user-mode Linux with its own vcan0: the panel must run in that same instance to reach it.
+user-mode Linux with its own vcan0, which no host process can open: there ``hil up`` runs a
+panel bridge beside the plant, and the request goes through the run folder to it
+(``hil.panel_bridge``); it sends the same FAULT_CMD with ``send_and_wait`` and hands back the
+plant's FAULT_ACK. ``--via auto`` (the default) takes the bridge when the run folder has a live
+one, else the bus; ``--via bus`` / ``--via run`` force one.
 """
 
 from __future__ import annotations
@@ -101,6 +105,17 @@ def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float)
         port.close()
 
 
+def deliver(cmd: FaultCmd, run: Path, via: str, interface: str, channel: str,
+            timeout_s: float) -> FaultAck:
+    """Send ``cmd`` by the path ``via`` names (auto: the run folder's live panel bridge when
+    there is one, else the bus) and return the plant's FAULT_ACK (BusError when none)."""
+    from hil.panel_bridge import bridge_info, send_via_run
+
+    if via == "run" or (via == "auto" and bridge_info(run) is not None):
+        return send_via_run(cmd, run, timeout_s)
+    return send_and_wait(cmd, interface, channel, timeout_s)
+
+
 def _request_id() -> int:
     return (int(time.time() * 1000) + next(_SEQ)) % 256  # FAULT_CMD.request_id is 8 bits
 
@@ -138,7 +153,7 @@ def _cmd(args) -> int:
         return _list(vehicle, source, run)
     cmd = build_command(vehicle, args.action, args.thruster, args.type, args.fraction,
                         args.at, args.clear_at, _request_id())
-    ack = send_and_wait(cmd, args.interface, args.channel, args.timeout)
+    ack = deliver(cmd, run, args.via, args.interface, args.channel, args.timeout)
     what = f"{args.action} {args.type + ' ' if args.type else ''}{args.thruster or 'all'}"
     if ack.status == AckStatus.ACCEPTED:
         print(f"ok: plant accepted {what} (request {ack.request_id}, vehicle {vehicle.name})")
@@ -194,6 +209,11 @@ def register(sub) -> None:
                         "runs/up): its vehicle and, for list, its faults")
     p.add_argument("--timeout", type=number(gt=0, le=3600), default=5.0,
                    help="seconds to wait for FAULT_ACK")
+    p.add_argument("--via", choices=("auto", "bus", "run"), default="auto",
+                   help="how the request reaches the plant: run = through the panel bridge of "
+                        "--run (hil up runs one; it works into user-mode Linux), bus = "
+                        "directly on --interface/--channel, auto (default) = run when --run has "
+                        "a live bridge, else bus")
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")
     p.set_defaults(func=_cmd)

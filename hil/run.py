@@ -34,6 +34,7 @@ import yaml
 from hil.argtypes import number
 from hil.config import MAX_DURATION_S, REPO_ROOT, load_scenario
 from hil.errors import BusError, UsageError
+from hil.panel_bridge import control_dir, request_stop, stop_path
 from hil.recorder import RrdRecorder, build_rrd, merge_by_tick, read_jsonl
 from hil.summary import summarise
 from hil.timing import timing_summary
@@ -54,8 +55,12 @@ def _vcan_ready(channel: str) -> bool:
     return vcan_present(channel)
 
 
-def maybe_in_uml(args, argv: list[str]) -> int | None:
-    """Re-run this command inside user-mode Linux when socketcan has no vcan here."""
+def maybe_in_uml(args, argv: list[str], out: Path | None = None) -> int | None:
+    """Re-run this command inside user-mode Linux when socketcan has no vcan here.
+
+    ``out``: the run folder; Ctrl-C or SIGTERM here then asks the supervisor inside to stop
+    through it (``hil.panel_bridge.request_stop``) and waits for it to write its result, as
+    natively; a second Ctrl-C, or no end within ``STOP_GRACE_S``, stops UML at once."""
     if args.interface != "socketcan" or os.environ.get(INSIDE_UML_ENV):
         return None
     if _vcan_ready(args.channel):
@@ -65,7 +70,18 @@ def maybe_in_uml(args, argv: list[str]) -> int | None:
     print("hil: this kernel has no CAN; running inside user-mode Linux (real vcan0 there)",
           flush=True)
     env = dict(os.environ, **{INSIDE_UML_ENV: "1"})
-    return run_in_uml([sys.executable, "-m", "hil.cli", *argv], env=env, cwd=os.getcwd())
+    on_interrupt = None
+    if out is not None:
+        def on_interrupt(why: str) -> None:
+            print(f"hil: {why}; asking the run inside user-mode Linux to stop and write its "
+                  f"result", file=sys.stderr, flush=True)
+            request_stop(out, why)
+    with stop_on_signals():
+        return run_in_uml([sys.executable, "-m", "hil.cli", *argv], env=env, cwd=os.getcwd(),
+                          on_interrupt=on_interrupt, interrupt_grace_s=STOP_GRACE_S)
+
+
+STOP_GRACE_S = 30.0  # how long an interrupted run inside UML gets to write its result
 
 
 class _Tail:
@@ -93,9 +109,20 @@ class _Tail:
 
 
 class BusMonitor(threading.Thread):
-    """Logs every frame on the bus to a candump file (a passive third node)."""
+    """Logs every frame on the bus to a candump file (a passive third node).
 
-    def __init__(self, interface: str, channel: str, path: Path) -> None:
+    Every frame is marked received (``R``): the monitor sends nothing (SocketCAN reports the
+    frames of other sockets of the same host as local, which python-can would write as ``T``).
+    With ``sim_time`` (lockstep) the stamps are simulated time, not the wall clock: a frame is
+    stamped with the time of the last SYNC the monitor heard (its ``sim_time_ms``) plus 1 us
+    per frame since that SYNC, so the log keeps the bus order and spans the simulated
+    duration (``cantools plot``, ``python -m can.player`` then show the run's own time base).
+    Frames before the first SYNC count from 0. In real time the stamps are the kernel's.
+    """
+
+    FRAME_STEP_S = 1e-6  # between frames of one tick in a simulated-time log
+
+    def __init__(self, interface: str, channel: str, path: Path, sim_time: bool = False) -> None:
         super().__init__(daemon=True)
         import can
 
@@ -106,11 +133,30 @@ class BusMonitor(threading.Thread):
         self.frames = 0
         self.error: str | None = None  # why bus.log stopped (disk full...), None if it did not
         self._halt = threading.Event()
+        self.sim_time = sim_time
+        self._sync_s, self._since_sync = 0.0, 0
+
+    def _stamp(self, m) -> None:
+        """Received, and in simulated time when asked (see the class doc)."""
+        from bus.catalog import CATALOG, SYNC_ID
+        from bus.codec import range_problem, unpack
+
+        m.is_rx = True
+        if not self.sim_time:
+            return
+        if m.arbitration_id == SYNC_ID and not m.is_error_frame and len(m.data) == 8:
+            f = CATALOG.frame("SYNC")
+            raws = unpack(f, bytes(m.data))
+            if range_problem(f, raws) is None:  # a SYNC failing its checks is not used
+                self._sync_s, self._since_sync = raws["sim_time_ms"] / 1000.0, 0
+        m.timestamp = self._sync_s + self._since_sync * self.FRAME_STEP_S
+        self._since_sync += 1
 
     def run(self) -> None:
         while not self._halt.is_set():
             m = self.bus.recv(0.1)
             if m is not None and self.error is None:
+                self._stamp(m)
                 try:
                     self.writer.on_message_received(m)
                 except OSError as exc:  # the bus log is lost from here; the run goes on
@@ -173,7 +219,9 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
     for name in ("plant.jsonl", "flight.jsonl", "run.rrd", "summary.json", "plant.ready",
                  "flight.ready", "bus.log"):
         (out / name).unlink(missing_ok=True)
-    monitor = BusMonitor(args.interface, args.channel, out / "bus.log")
+    reset_control(out)  # stale requests or a stop request of an earlier run in this folder
+    monitor = BusMonitor(args.interface, args.channel, out / "bus.log",
+                         sim_time=args.mode == "lockstep")
     monitor.start()
     # The rerun recording is built from the JSON lines after the run (``build_rrd``): logging it
     # live cost the supervisor more CPU than the flight software used, in the middle of the
@@ -186,9 +234,10 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
     procs: dict[str, subprocess.Popen] = {}
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     t_wall = time.monotonic()
+    stop_file = stop_path(out)
     killed_flight_at = getattr(args, "kill_flight_at", None)
     killed: dict[str, tuple[float, float]] = {}
-    interrupted = False
+    interrupted: str | None = None  # what ended the run before its end (a signal, a request)
     try:
         procs["flight"] = subprocess.Popen(_node_cmd("flight", scenario_path, out, args),
                                            stdout=logs["flight"], stderr=subprocess.STDOUT,
@@ -198,6 +247,12 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         procs["plant"] = subprocess.Popen(
             _node_cmd("plant", scenario_path, out, args, start_after=out / "flight.ready"),
             stdout=logs["plant"], stderr=subprocess.STDOUT, env=env, cwd=REPO_ROOT)
+        if endless:  # hil up: the fault panel's way in through the run folder (hil.panel_bridge)
+            logs["panel"] = (out / "panel.log").open("w")
+            procs["panel"] = subprocess.Popen(
+                [sys.executable, "-m", "hil.panel_bridge", "--run", str(out),
+                 "--interface", args.interface, "--channel", args.channel],
+                stdout=logs["panel"], stderr=subprocess.STDOUT, env=env, cwd=REPO_ROOT)
         _wait_ready(out / "flight.ready", procs["flight"])
         _wait_ready(out / "plant.ready", procs["plant"])
         tails = {"plant": _Tail(out / "plant.jsonl"), "flight": _Tail(out / "flight.jsonl")}
@@ -229,16 +284,25 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                 last_print = now
             if done:
                 break
+            if stop_file.exists():  # the host's Ctrl-C or SIGTERM, through the run folder
+                interrupted = _stop_reason(stop_file)
+                print(f"hil: {interrupted}, stopping the processes", file=sys.stderr, flush=True)
+                break
             time.sleep(0.05)
-    except KeyboardInterrupt:
-        interrupted = True
-        print("hil: interrupted, stopping the processes", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        interrupted = str(exc) or "interrupted (SIGINT)"
+        print(f"hil: {interrupted}, stopping the processes", file=sys.stderr, flush=True)
     finally:
+        # A second Ctrl-C or SIGTERM must not cut the clean-up that keeps the run's result.
+        old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)} \
+            if threading.current_thread() is threading.main_thread() else {}
         for p in procs.values():
             _stop(p)
         monitor.stop()
         for f in logs.values():
             f.close()
+        if rrd is not None:
+            rrd.close()
     io_errors = [monitor.error] if monitor.error else []
     if rrd is None:
         try:
@@ -263,10 +327,52 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                "where": "user-mode Linux" if os.environ.get(INSIDE_UML_ENV) else "native"},
         expected_ticks=None if endless else n_ticks,
         exit_codes={k: p.returncode for k, p in procs.items()}, killed=killed,
-        interrupted=interrupted and not endless, io_error="; ".join(io_errors) or None,
+        interrupted=bool(interrupted) and not endless, io_error="; ".join(io_errors) or None,
     )
+    # An interrupted run keeps its result: the ticks done are in ``ticks``, what ended it here.
+    summary["interrupted"] = bool(interrupted)
+    summary["interrupted_by"] = interrupted
     write_summary(out, summary)
+    for s, handler in old.items():
+        signal.signal(s, handler)
     return summary
+
+
+def reset_control(out: Path) -> None:
+    """Empty ``out/control`` (``hil.panel_bridge``) before a run starts in ``out``."""
+    d = control_dir(out)
+    if d.is_dir():
+        for f in d.iterdir():
+            with contextlib.suppress(OSError):
+                f.unlink()
+
+
+def _stop_reason(stop_file: Path) -> str:
+    try:
+        return str(json.loads(stop_file.read_text()).get("why") or "stop requested")
+    except (OSError, ValueError, AttributeError):
+        return "stop requested"
+
+
+class _Signalled(KeyboardInterrupt):
+    """SIGTERM (``timeout``, ``kill``) handled as Ctrl-C: the run stops and keeps its result."""
+
+
+@contextlib.contextmanager
+def stop_on_signals():
+    """SIGINT and SIGTERM raise ``KeyboardInterrupt`` naming the signal, for the duration."""
+    def handler(signum, _frame):
+        raise _Signalled(f"interrupted ({signal.Signals(signum).name})")
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 def write_summary(out: Path, summary: dict) -> None:
@@ -370,11 +476,12 @@ def _cmd_run(args) -> int:
         argv += ["--kill-flight-at", str(args.kill_flight_at)]
     if args.rt_priority:
         argv.append("--rt")
-    rc = maybe_in_uml(args, argv)
+    rc = maybe_in_uml(args, argv, out.resolve())
     if rc is not None:
         return rc
     _batch_policy()
-    s = supervise(scenario.resolve(), out.resolve(), args)
+    with stop_on_signals():
+        s = supervise(scenario.resolve(), out.resolve(), args)
     _print_verdict(s, out)
     return EXIT_CODES[s["verdict"]]
 
@@ -402,11 +509,12 @@ def _cmd_up(args) -> int:
             "--interface", args.interface, "--channel", args.channel]
     if args.rt_priority:
         argv.append("--rt")
-    rc = maybe_in_uml(args, argv)
+    rc = maybe_in_uml(args, argv, out)
     if rc is not None:
         return rc
     _batch_policy()
-    s = supervise(scenario, out, args, viewer=args.viewer, endless=True)
+    with stop_on_signals():
+        s = supervise(scenario, out, args, viewer=args.viewer, endless=True)
     _print_verdict(s, out)
     return 0
 
