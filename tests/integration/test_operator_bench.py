@@ -1,0 +1,174 @@
+"""The operator's bench for real, as a user drives it from a shell on this machine.
+
+* ``hil up`` in the background (inside user-mode Linux where the kernel has no CAN, which
+  is where CI runs it; natively on a kernel with vcan0), ``hil fault inject`` from the host:
+  the plant's acknowledgement comes back and the flight's detection is in the summary.
+* Ctrl-C (SIGINT to the process group, as a terminal sends it), SIGTERM and ``timeout`` of
+  ``hil up`` and ``hil run``, natively (udp_multicast: no CAN needed) and inside user-mode
+  Linux: each leaves a whole ``summary.json`` marked interrupted with the ticks done, a
+  ``run.rrd`` that ``rerun rrd verify`` reads, no process of the run left, and a folder that
+  ``hil report`` accepts.
+
+Each case boots processes (and UML) for real: 15-60 s each.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from hil import uml
+from hil.config import REPO_ROOT
+
+HIL = [sys.executable, "-m", "hil.cli"]
+RERUN = Path(sys.executable).parent / "rerun"
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(uml.in_uml(), reason="drives hil up/run from the host")]
+
+
+def _uml_ok() -> bool:
+    try:
+        uml.find_uml_kernel()
+    except uml.UmlError:
+        return False
+    return True
+
+
+def _udp() -> list[str]:
+    group = f"239.74.{random.randrange(1, 255)}.{random.randrange(1, 255)}"
+    return ["--interface", "udp_multicast", "--channel", group]
+
+
+def _start(args: list[str], log: Path) -> subprocess.Popen:
+    # Own process group: a signal to the group is what a terminal's Ctrl-C does.
+    return subprocess.Popen([*HIL, *args], stdout=log.open("w"), stderr=subprocess.STDOUT,
+                            stdin=subprocess.DEVNULL, start_new_session=True, cwd=REPO_ROOT,
+                            env=dict(os.environ, RERUN_ANALYTICS="0"))
+
+
+def _wait_for(pred, timeout_s: float, what: str, log: Path) -> None:
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        if pred():
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"{what} not within {timeout_s} s; log:\n{log.read_text()[-3000:]}")
+
+
+def _ticks(path: Path) -> int:
+    try:
+        return sum(1 for _ in path.open())
+    except OSError:
+        return 0
+
+
+def _left_behind(out: Path) -> list[str]:
+    """Processes whose command line names the run folder (nodes, bridge, UML)."""
+    left = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if str(out) in cmd:
+            left.append(f"{pid}: {cmd}")
+    return left
+
+
+def _check_kept(out: Path, proc: subprocess.Popen, log: Path, by: str) -> dict:
+    rc = proc.wait(90)
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interrupted"] is True, log.read_text()[-2000:]
+    assert by in s["interrupted_by"]
+    recs = [json.loads(x) for x in (out / "plant.jsonl").read_text().splitlines()]
+    assert s["ticks"] == len([r for r in recs if not r.get("final")]) > 0  # every tick done
+    verify = subprocess.run([str(RERUN), "rrd", "verify", str(out / "run.rrd")],
+                            capture_output=True, text=True, timeout=120)
+    assert verify.returncode == 0, verify.stderr[-2000:]
+    assert _left_behind(out) == []
+    rep = subprocess.run([*HIL, "report", str(out), "--out", str(out / "report")],
+                         capture_output=True, text=True, timeout=300, cwd=REPO_ROOT)
+    # 1 / 3: the run did not pass / failed; either way it is in the report, with its ticks.
+    assert rep.returncode in (0, 1, 3), rep.stderr
+    md = (out / "report" / "report.md").read_text()
+    assert f"{s['ticks']} ticks" in md
+    s["_rc"] = rc
+    return s
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_hil_run_natively_interrupted_keeps_its_result(tmp_path, sig):
+    out, log = tmp_path / "run", tmp_path / "log.txt"
+    proc = _start(["run", "configs/scenarios/S000-stuck.yaml", "--out", str(out),
+                   "--mode", "realtime", *_udp()], log)
+    _wait_for(lambda: _ticks(out / "plant.jsonl") > 10, 60, "10 plant ticks", log)
+    os.killpg(proc.pid, sig)
+    s = _check_kept(out, proc, log, sig.name)
+    # A run that did not reach its end is a failed run, whatever its expectations say.
+    assert s["_rc"] == 3 and s["verdict"] == "run_failed"
+    assert "interrupted before the end (Ctrl-C or a signal)" in s["run_failures"]
+    assert s["where"] == "native"
+
+
+def test_hil_up_natively_under_timeout_keeps_its_result(tmp_path):
+    out, log = tmp_path / "up", tmp_path / "log.txt"
+    proc = subprocess.Popen(["timeout", "25", *HIL, "up", "--out", str(out), *_udp()],
+                            stdout=log.open("w"), stderr=subprocess.STDOUT,
+                            stdin=subprocess.DEVNULL, cwd=REPO_ROOT,
+                            env=dict(os.environ, RERUN_ANALYTICS="0"))
+    s = _check_kept(out, proc, log, "SIGTERM")
+    assert s["_rc"] == 124  # what `timeout` says when it had to stop the command
+
+
+@pytest.mark.skipif(not _uml_ok(), reason="user-mode-linux is not installed")
+def test_hil_up_by_default_takes_a_fault_from_the_host_and_keeps_the_detection(tmp_path):
+    """The issue's case: `hil up`, then `hil fault inject` in another terminal, then Ctrl-C."""
+    out, log = tmp_path / "up", tmp_path / "log.txt"
+    proc = _start(["up", "--vehicle", "generic", "--out", str(out)], log)
+    _wait_for(lambda: _ticks(out / "plant.jsonl") > 5
+              and (out / "control" / "bridge.json").exists(), 120, "hil up running", log)
+    t0 = time.monotonic()
+    inj = subprocess.run([*HIL, "fault", "inject", "--thruster", "X+", "--type", "stuck_on",
+                          "--run", str(out)], capture_output=True, text=True, timeout=60,
+                         cwd=REPO_ROOT)
+    took = time.monotonic() - t0
+    assert inj.returncode == 0, inj.stderr
+    assert inj.stdout.startswith("ok: plant accepted inject stuck_on X+ (request ")
+    print(f"hil fault inject to its exit (FAULT_ACK through the run folder): {took:.2f} s")
+    bad = subprocess.run([*HIL, "fault", "inject", "--thruster", "X+", "--type", "stuck_on",
+                          "--fraction", "1.5", "--run", str(out)], capture_output=True,
+                         text=True, timeout=60, cwd=REPO_ROOT)
+    assert bad.returncode == 2 and bad.stderr.startswith("error: hil fault: argument --fraction")
+    _wait_for(lambda: any(json.loads(x).get("detection") for x in
+                          (out / "flight.jsonl").read_text().splitlines()), 60,
+              "the flight's detection", log)
+    os.killpg(proc.pid, signal.SIGINT)
+    s = _check_kept(out, proc, log, "SIGINT")
+    kernel_has_can = subprocess.run(["ip", "link", "show", "vcan0"],
+                                    capture_output=True).returncode == 0
+    assert s["where"] == ("native" if kernel_has_can else "user-mode Linux")
+    assert [(f["thruster"], f["type"]) for f in s["faults"]] == [("X+", "stuck_on")]
+    first = s["detections"][0]
+    assert (first["thruster"], first["type"], first["correct"]) == ("X+", "stuck_on", True)
+
+
+@pytest.mark.skipif(not _uml_ok(), reason="user-mode-linux is not installed")
+def test_hil_run_by_default_sigterm_keeps_its_result(tmp_path):
+    out, log = tmp_path / "run", tmp_path / "log.txt"
+    proc = _start(["run", "configs/scenarios/S000-stuck.yaml", "--out", str(out),
+                   "--mode", "realtime"], log)
+    _wait_for(lambda: _ticks(out / "plant.jsonl") > 10, 120, "10 plant ticks", log)
+    os.killpg(proc.pid, signal.SIGTERM)
+    s = _check_kept(out, proc, log, "SIGTERM")
+    assert s["_rc"] == 3 and "interrupted before the end (Ctrl-C or a signal)" in \
+        s["run_failures"]
