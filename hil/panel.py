@@ -24,7 +24,7 @@ one, else the bus; ``--via bus`` / ``--via run`` force one.
 from __future__ import annotations
 
 import itertools
-import json
+import sys
 import time
 from pathlib import Path
 
@@ -153,6 +153,9 @@ def _cmd(args) -> int:
         return _list(vehicle, source, run)
     cmd = build_command(vehicle, args.action, args.thruster, args.type, args.fraction,
                         args.at, args.clear_at, _request_id())
+    late = past_start_warning(args.at, run)
+    if late:
+        print(late, file=sys.stderr)
     ack = deliver(cmd, run, args.via, args.interface, args.channel, args.timeout)
     what = f"{args.action} {args.type + ' ' if args.type else ''}{args.thruster or 'all'}"
     if ack.status == AckStatus.ACCEPTED:
@@ -161,6 +164,18 @@ def _cmd(args) -> int:
     print(f"error: plant rejected {what} (request {ack.request_id}): "
           f"{AckReason(ack.reason).name.lower()}")
     return 1
+
+
+def past_start_warning(at_s: float | None, run: Path) -> str | None:
+    """A warning when ``--at`` is already behind the running plant's time (its last record):
+    the plant then applies the fault at once, not at ``--at``."""
+    if at_s is None:
+        return None
+    _, now = active_faults(read_jsonl(Path(run) / "plant.jsonl"))
+    if now is None or at_s >= now:
+        return None
+    return (f"warning: fault: --at {at_s:g} s is in the past (plant time {now:.1f} s in {run}): "
+            f"the plant applies it at once")
 
 
 def active_faults(records) -> tuple[list[dict], float | None]:
@@ -185,13 +200,40 @@ def _list(vehicle: VehicleCfg, source: str, run: Path) -> int:
     if not active:
         print(f"no fault active in the run at {run}"
               + ("" if now is None else f" (plant time {now:.1f} s)"))
-    for f in active:
-        print(json.dumps(f))
+        return 0
+    print(f"faults active at plant time {now:.1f} s in {run}:")
+    for line in fault_table(active):
+        print(line)
     return 0
 
 
+FAULT_COLUMNS = (("thruster", "thruster", "{}"), ("type", "type", "{}"),
+                 ("fraction", "fraction", "{:g}"), ("t_s", "from [s]", "{:.2f}"),
+                 ("clear_t_s", "until [s]", "{:.2f}"))
+
+
+def fault_table(faults: list[dict]) -> list[str]:
+    """Active faults as an aligned text table (header first); ``-`` for no value."""
+    rows = [[h for _, h, _ in FAULT_COLUMNS]]
+    for f in faults:
+        rows.append(["-" if f.get(k) is None else fmt.format(f[k]) for k, _, fmt in FAULT_COLUMNS])
+    widths = [max(len(r[i]) for r in rows) for i in range(len(FAULT_COLUMNS))]
+    return ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in rows]
+
+
 def register(sub) -> None:
-    p = sub.add_parser("fault", help="fault panel: inject, clear or list faults (running system)")
+    import argparse
+
+    summary = "fault panel: inject, clear or list faults in the running system (hil up)"
+    p = sub.add_parser("fault", help=summary, description=summary,
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog="""examples:
+  hil fault list                                     thrusters and active faults of runs/up
+  hil fault inject --thruster X+ --type stuck_on     now, full thrust
+  hil fault inject --thruster 17 --type degraded --fraction 0.4 --at 30 --clear-at 60
+  hil fault clear --thruster X+                      (no --thruster: every fault)
+
+exit codes: 0 the plant accepted (FAULT_ACK), 1 it rejected (the reason is printed),
+2 bad request or no FAULT_ACK in time (nothing applied).""")
     p.add_argument("action", choices=("inject", "clear", "list"))
     p.add_argument("--thruster", help="thruster name (see `hil fault list`)")
     p.add_argument("--type", choices=list(TYPES), help="fault type (inject)")

@@ -465,8 +465,23 @@ def _batch_policy() -> None:
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
 
 
+def scenario_path(arg: str, option: str = "SCENARIO") -> Path:
+    """A scenario file, or the name of one in ``configs/scenarios`` (``S000-stuck``), as
+    vehicles are named; a name that is neither gets the list of names."""
+    from hil.config import SCENARIO_DIR
+
+    p = Path(arg)
+    if p.exists() or p.suffix in (".yaml", ".yml"):
+        return p
+    named = SCENARIO_DIR / f"{arg}.yaml"
+    if named.exists():
+        return named
+    raise UsageError(f"{option}: expected a scenario file or one of "
+                     f"{sorted(q.stem for q in SCENARIO_DIR.glob('*.yaml'))}, got {arg!r}")
+
+
 def _cmd_run(args) -> int:
-    scenario = Path(args.scenario)
+    scenario = scenario_path(args.scenario, "hil run: SCENARIO")
     sc = load_scenario(scenario)  # config errors exit 2 before anything starts
     out = Path(args.out or Path("runs") / sc.cfg.name)
     check_writable(out)  # before user-mode Linux boots
@@ -489,7 +504,7 @@ def _cmd_run(args) -> int:
 def _cmd_up(args) -> int:
     check_writable(Path(args.out or "runs/up"))  # before anything is made or boots
     if args.scenario:
-        scenario = Path(args.scenario).resolve()
+        scenario = scenario_path(args.scenario, "hil up: --scenario").resolve()
         load_scenario(scenario)  # config errors exit 2 before anything starts
     else:
         from hil.config import VEHICLE_DIR
@@ -528,9 +543,37 @@ def _bus_args(p) -> None:
     p.add_argument("--channel", default="vcan0", help="bus channel (default vcan0)")
 
 
+RUN_EPILOG = """examples:
+  hil run S000-stuck                     a reference scenario by name (configs/scenarios)
+  hil run my.yaml --mode realtime        a scenario file, real time
+  hil run S000-stuck --out runs/a        then: hil report runs/a
+
+exit codes: 0 expectations met, 1 not met, 2 usage/configuration error, 3 the run failed.
+Ctrl-C or SIGTERM stops the run and keeps its result (summary.json marked interrupted)."""
+
+UP_EPILOG = """examples:
+  hil up                                 the generic vehicle in real time, until Ctrl-C
+  hil up --vehicle orel --out runs/up    then, in another terminal:
+  hil console                            watch it (and inject from its fault panel)
+  hil fault inject --thruster X+ --type stuck_on
+  hil report runs/up                     after Ctrl-C: the verdict of what ran
+
+Where the kernel has no CAN the processes run inside user-mode Linux; hil fault and hil
+console reach them through the run folder (--out)."""
+
+
+def _help(sub, name: str, summary: str, epilog: str):
+    import argparse
+
+    return sub.add_parser(name, help=summary, description=summary, epilog=epilog,
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
 def register(sub) -> None:
-    p = sub.add_parser("run", help="run a scenario over the bus and judge it (exit 0/1/2)")
-    p.add_argument("scenario", metavar="SCENARIO.yaml")
+    p = _help(sub, "run", "run a scenario over the bus and judge it against its expectations",
+              RUN_EPILOG)
+    p.add_argument("scenario", metavar="SCENARIO",
+                   help="a scenario file, or the name of one in configs/scenarios")
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/<scenario name>)")
     p.add_argument("--kill-flight-at", type=number(ge=0, le=MAX_DURATION_S), metavar="T",
@@ -538,9 +581,10 @@ def register(sub) -> None:
     _bus_args(p)
     p.set_defaults(func=_cmd_run)
 
-    u = sub.add_parser("up", help="bring plant and flight up until Ctrl-C (inject with hil fault)")
+    u = _help(sub, "up", "bring plant and flight up until Ctrl-C; watch with hil console, inject "
+                         "with hil fault", UP_EPILOG)
     u.add_argument("--vehicle", default="generic")
-    u.add_argument("--scenario", help="scenario file instead of a bare vehicle")
+    u.add_argument("--scenario", help="scenario file or name instead of a bare vehicle")
     u.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")
     u.add_argument("--duration", type=number(gt=0, le=MAX_DURATION_S), default=3600.0,
                    help="seconds (default 3600)")

@@ -155,3 +155,17 @@ def test_request_round_trip_keeps_every_field():
     cmd = FaultCmd(201, FaultAction.INJECT, FaultKind.DEGRADED, 5, 0.25, 12.5, 30.0)
     assert panel_bridge.cmd_from_json(json.loads(json.dumps(panel_bridge.cmd_to_json(cmd)))) \
         == cmd
+
+
+def test_an_at_in_the_past_is_warned_with_the_plant_time(plant, capsys):
+    with (plant.run / "plant.jsonl").open("a") as f:  # the plant's clock has moved on
+        f.write(json.dumps({"tick": 40, "t_s": 8.0, "events": []}) + "\n")
+    t_now = 8.0
+    assert main(_fault(plant, "bus", "inject", "--thruster", "3", "--type", "stuck_on",
+                       "--at", "5")) == 0
+    err = capsys.readouterr().err
+    assert err == (f"warning: fault: --at 5 s is in the past (plant time {t_now:.1f} s in "
+                   f"{plant.run}): the plant applies it at once\n")
+    assert main(_fault(plant, "bus", "inject", "--thruster", "3", "--type", "stuck_on",
+                       "--at", f"{t_now + 10:g}")) == 0
+    assert capsys.readouterr().err == ""
