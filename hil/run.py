@@ -524,12 +524,26 @@ def _cmd_up(args) -> int:
             "--interface", args.interface, "--channel", args.channel]
     if args.rt_priority:
         argv.append("--rt")
-    rc = maybe_in_uml(args, argv, out)
-    if rc is not None:
-        return rc
-    _batch_policy()
-    with stop_on_signals():
-        s = supervise(scenario, out, args, viewer=args.viewer, endless=True)
+    feed = None
+    if args.viewer or args.web:  # fed from here, also when the run is inside UML
+        from hil.live_viewer import LiveViewer, find_viewer
+
+        if args.viewer:
+            find_viewer()  # one line and exit 2 before anything boots when it is missing
+        feed = LiveViewer(out, recording_id=scenario.stem, web=args.web)
+        if feed.url:
+            print(f"hil: web viewer at {feed.url}", flush=True)
+        feed.start()
+    try:
+        rc = maybe_in_uml(args, argv, out)
+        if rc is not None:
+            return rc
+        _batch_policy()
+        with stop_on_signals():
+            s = supervise(scenario, out, args, endless=True)
+    finally:
+        if feed is not None:
+            feed.stop()
     _print_verdict(s, out)
     return 0
 
@@ -589,7 +603,10 @@ def register(sub) -> None:
     u.add_argument("--duration", type=number(gt=0, le=MAX_DURATION_S), default=3600.0,
                    help="seconds (default 3600)")
     u.add_argument("--out", metavar="DIR", help="output folder (default runs/up)")
-    u.add_argument("--viewer", action="store_true", help="open the rerun viewer live")
+    u.add_argument("--viewer", action="store_true",
+                   help="open the rerun viewer (.venv/bin/rerun) fed live from the run folder")
+    u.add_argument("--web", action="store_true",
+                   help="serve the rerun web viewer on 127.0.0.1 (port 9090), print its URL")
     u.add_argument("--kill-flight-at", type=number(ge=0, le=MAX_DURATION_S),
                    help=argparse_suppress())
     _bus_args(u)

@@ -172,3 +172,34 @@ def test_hil_run_by_default_sigterm_keeps_its_result(tmp_path):
     s = _check_kept(out, proc, log, "SIGTERM")
     assert s["_rc"] == 3 and "interrupted before the end (Ctrl-C or a signal)" in \
         s["run_failures"]
+
+
+def test_hil_up_web_serves_the_viewer_and_says_where(tmp_path):
+    import urllib.request
+
+    out, log = tmp_path / "up", tmp_path / "log.txt"
+    proc = _start(["up", "--web", "--out", str(out), *_udp()], log)
+    try:
+        _wait_for(lambda: "web viewer at http://127.0.0.1:" in log.read_text(), 60,
+                  "the viewer's URL", log)
+        url = log.read_text().split("web viewer at ")[1].split()[0]
+        _wait_for(lambda: _ticks(out / "plant.jsonl") > 3, 60, "ticks", log)
+        with urllib.request.urlopen(url.split("?")[0], timeout=10) as page:
+            assert page.status == 200 and b"rerun" in page.read().lower()
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+    _check_kept(out, proc, log, "SIGINT")
+
+
+def test_viewer_is_found_beside_python_or_refused_in_one_line(monkeypatch, tmp_path):
+    from hil.errors import UsageError
+    from hil.live_viewer import find_viewer
+
+    assert find_viewer() == Path(sys.executable).parent / "rerun"
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "python"))
+    monkeypatch.setenv("PATH", str(tmp_path))
+    with pytest.raises(UsageError) as e:
+        find_viewer()
+    assert str(e.value) == (f"hil up: --viewer: expected the rerun viewer (the `rerun` "
+                            f"executable of rerun-sdk) in {tmp_path} or on PATH, got none: "
+                            f"install rerun-sdk (bash scripts/setup.sh) or use --web")
