@@ -157,13 +157,18 @@ def _cmd(args) -> int:
     if late:
         print(late, file=sys.stderr)
     ack = deliver(cmd, run, args.via, args.interface, args.channel, args.timeout)
-    what = f"{args.action} {args.type + ' ' if args.type else ''}{args.thruster or 'all'}"
+    print(ack_line(ack, args.action, args.type, args.thruster, vehicle.name))
+    return 0 if ack.status == AckStatus.ACCEPTED else 1
+
+
+def ack_line(ack: FaultAck, action: str, kind: str | None, thruster: str | None,
+             vehicle_name: str) -> str:
+    """What the panel prints for the plant's FAULT_ACK (also the console's fault panel)."""
+    what = f"{action} {kind + ' ' if kind else ''}{thruster or 'all'}"
     if ack.status == AckStatus.ACCEPTED:
-        print(f"ok: plant accepted {what} (request {ack.request_id}, vehicle {vehicle.name})")
-        return 0
-    print(f"error: plant rejected {what} (request {ack.request_id}): "
-          f"{AckReason(ack.reason).name.lower()}")
-    return 1
+        return f"ok: plant accepted {what} (request {ack.request_id}, vehicle {vehicle_name})"
+    return (f"error: plant rejected {what} (request {ack.request_id}): "
+            f"{AckReason(ack.reason).name.lower()}")
 
 
 def past_start_warning(at_s: float | None, run: Path) -> str | None:

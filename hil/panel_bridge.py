@@ -3,7 +3,7 @@
 Where the kernel has no CAN, ``hil up`` runs its processes inside user-mode Linux, whose vcan0
 no host process can open. What the host and that instance share is the disk (hostfs), so the
 run folder carries the requests: ``hil up`` starts a panel bridge (``python -m
-hil.panel_bridge``) beside the plant and flight, in the same instance, on the same bus. It
+hil.panel_server``) beside the plant and flight, in the same instance, on the same bus. It
 serves ``RUN/control/``:
 
 * ``bridge.json``: written when the bridge starts and again every ``HEARTBEAT_S``; its
@@ -27,12 +27,10 @@ run as it would on its own Ctrl-C (summary written, processes stopped, ``run.rrd
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import os
 import secrets
-import sys
 import time
 from pathlib import Path
 
@@ -130,10 +128,10 @@ def send_via_run(cmd: FaultCmd, run: Path, timeout_s: float) -> FaultAck:
                 p.unlink()
 
 
-def serve(run: Path, interface: str, channel: str, stop) -> int:
-    """The bridge's loop: answer every request in ``run/control`` until ``stop()``."""
-    from hil.panel import send_and_wait
-
+def serve(run: Path, interface: str, channel: str, stop, send_and_wait) -> int:
+    """The bridge's loop: answer every request in ``run/control`` until ``stop()``, each sent
+    with ``send_and_wait(cmd, interface, channel, timeout_s)`` (``hil.panel.send_and_wait``:
+    ``hil.panel_server`` runs it so)."""
     d = control_dir(run)
     d.mkdir(parents=True, exist_ok=True)
     info = {"interface": interface, "channel": channel, "pid": os.getpid(),
@@ -178,18 +176,3 @@ def serve(run: Path, interface: str, channel: str, stop) -> int:
 def _answer(d: Path, req_name: str, body: dict) -> None:
     with contextlib.suppress(OSError):
         _write_whole(d / ("ack-" + req_name[len("req-"):]), body)
-
-
-def main(argv: list[str] | None = None) -> int:
-    from hil.node_shell import Stop
-
-    p = argparse.ArgumentParser(prog="python -m hil.panel_bridge")
-    p.add_argument("--run", required=True)
-    p.add_argument("--interface", default="socketcan")
-    p.add_argument("--channel", default="vcan0")
-    a = p.parse_args(argv)
-    return serve(Path(a.run), a.interface, a.channel, Stop())
-
-
-if __name__ == "__main__":
-    sys.exit(main())

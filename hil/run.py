@@ -250,7 +250,7 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         if endless:  # hil up: the fault panel's way in through the run folder (hil.panel_bridge)
             logs["panel"] = (out / "panel.log").open("w")
             procs["panel"] = subprocess.Popen(
-                [sys.executable, "-m", "hil.panel_bridge", "--run", str(out),
+                [sys.executable, "-m", "hil.panel_server", "--run", str(out),
                  "--interface", args.interface, "--channel", args.channel],
                 stdout=logs["panel"], stderr=subprocess.STDOUT, env=env, cwd=REPO_ROOT)
         _wait_ready(out / "flight.ready", procs["flight"])

@@ -21,6 +21,7 @@ from bus.codec import FaultCmd
 from hil import panel_bridge
 from hil.cli import main
 from hil.errors import BusError
+from hil.panel import send_and_wait
 from tests.hil.test_panel_running import _RunningPlant
 
 
@@ -29,7 +30,7 @@ class _Bridge:
         self.halt = threading.Event()
         self.thread = threading.Thread(
             target=panel_bridge.serve, daemon=True,
-            args=(plant.run, "virtual", plant.channel, self.halt.is_set))
+            args=(plant.run, "virtual", plant.channel, self.halt.is_set, send_and_wait))
         self.thread.start()
         t_end = time.monotonic() + 5
         while panel_bridge.bridge_info(plant.run) is None and time.monotonic() < t_end:
@@ -133,7 +134,8 @@ def test_a_bridge_that_is_gone_or_silent_is_a_one_line_error(tmp_path):
 def test_a_bad_request_file_is_answered_not_fatal(tmp_path):
     halt = threading.Event()
     t = threading.Thread(target=panel_bridge.serve, daemon=True,
-                         args=(tmp_path, "virtual", "bridge-bad-req", halt.is_set))
+                         args=(tmp_path, "virtual", "bridge-bad-req", halt.is_set,
+                               send_and_wait))
     t.start()
     try:
         d = panel_bridge.control_dir(tmp_path)
