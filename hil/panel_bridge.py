@@ -157,9 +157,13 @@ def serve(run: Path, interface: str, channel: str, stop, send_and_wait) -> int:
                                                  f"panel request, got {exc}"})
                 continue
             try:
+                t0 = time.monotonic()
                 ack = send_and_wait(cmd, interface, channel, timeout_s)
                 _answer(d, entry.name, {"request_id": ack.request_id, "status": int(ack.status),
-                                        "reason": int(ack.reason), "kind": int(ack.kind)})
+                                        "reason": int(ack.reason), "kind": int(ack.kind),
+                                        "bus_s": round(time.monotonic() - t0, 4)})
+                print(f"panel bridge: request {cmd.request_id}: FAULT_ACK after "
+                      f"{time.monotonic() - t0:.3f} s on the bus", flush=True)
             except BusError as exc:
                 _answer(d, entry.name, {"error": str(exc)})
             except Exception as exc:  # noqa: BLE001 - a request never kills the bridge

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -203,3 +204,58 @@ def test_viewer_is_found_beside_python_or_refused_in_one_line(monkeypatch, tmp_p
     assert str(e.value) == (f"hil up: --viewer: expected the rerun viewer (the `rerun` "
                             f"executable of rerun-sdk) in {tmp_path} or on PATH, got none: "
                             f"install rerun-sdk (bash scripts/setup.sh) or use --web")
+
+
+@pytest.mark.skipif(not _uml_ok(), reason="user-mode-linux is not installed")
+def test_console_on_hil_up_injects_and_shows_the_detection(tmp_path):
+    """`hil up` (user-mode Linux here), `hil console` attached from the host in Textual's
+    pilot at 80x24: a stuck-on injected from its fault panel is acknowledged and detected on
+    its screen; `hil fault` from a second terminal clears it; Ctrl-C keeps the summary."""
+    import asyncio
+
+    from hil.console import _app_classes
+
+    out, log = tmp_path / "up", tmp_path / "log.txt"
+    proc = _start(["up", "--vehicle", "generic", "--out", str(out)], log)
+    try:
+        _wait_for(lambda: _ticks(out / "plant.jsonl") > 5
+                  and (out / "control" / "bridge.json").exists(), 120, "hil up running", log)
+        ConsoleApp, _ = _app_classes()
+        app = ConsoleApp(out)
+
+        async def drive() -> tuple[str, str, float]:
+            async with app.run_test(size=(80, 24)) as pilot:
+                await pilot.pause(0.5)
+                await pilot.press("f")
+                await pilot.click("#thruster")
+                await pilot.press("X", "+")
+                t0 = time.monotonic()
+                await pilot.click("#inject")
+                while not app.acks and time.monotonic() < t0 + 30:
+                    await pilot.pause(0.02)
+                took = time.monotonic() - t0
+                await pilot.press("escape")
+                t_end = time.monotonic() + 60
+                while not app.model.detections and time.monotonic() < t_end:
+                    await pilot.pause(0.2)
+                await pilot.pause(0.5)
+                app.save_screenshot("console.svg", str(tmp_path))
+                return app.acks[0], str(app.query_one("#fdir").render()), took
+
+        ack, fdir_pane, took = asyncio.run(drive())
+        assert re.fullmatch(r"ok: plant accepted inject stuck_on X\+ \(request \d+, vehicle "
+                            r"generic\)", ack)
+        assert "detected stuck_on X+" in fdir_pane, fdir_pane
+        assert "faults active: stuck_on X+" in fdir_pane
+        ms = sorted(app.render_ms)
+        print(f"console: FAULT_ACK {took:.3f} s after Inject; refresh cost per update p50 "
+              f"{ms[len(ms) // 2]:.2f} ms, max {ms[-1]:.2f} ms over {len(ms)} updates")
+        clr = subprocess.run([*HIL, "fault", "clear", "--run", str(out)], capture_output=True,
+                             text=True, timeout=60, cwd=REPO_ROOT)
+        assert clr.returncode == 0 and clr.stdout.startswith("ok: plant accepted clear all")
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+    s = _check_kept(out, proc, log, "SIGINT")
+    assert [(f["thruster"], f["type"]) for f in s["faults"]] == [("X+", "stuck_on")]
+    assert s["faults"][0]["clear_t_s"] is not None
+    assert s["detections"][0]["thruster"] == "X+" and s["detections"][0]["correct"]
