@@ -340,8 +340,9 @@ def _app_classes():
 
         def __init__(self, run: Path, interface: str = "socketcan", channel: str = "vcan0",
                      vehicle: str | None = None, period_s: float = 0.1,
-                     timeout_s: float = 5.0) -> None:
+                     timeout_s: float = 5.0, title_note: str = "") -> None:
             super().__init__()
+            self.title_note = title_note
             self.run_dir, self.period_s = Path(run), period_s
             self.interface, self.channel, self.vehicle = interface, channel, vehicle
             self.timeout_s = timeout_s
@@ -365,6 +366,7 @@ def _app_classes():
 
         def on_mount(self) -> None:
             self.title = f"hil console {self.run_dir}"
+            self.sub_title = self.title_note
             self.refresh_view(force=True)
             self.set_interval(self.period_s, self.refresh_view)
 

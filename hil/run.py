@@ -524,6 +524,8 @@ def _cmd_up(args) -> int:
             "--interface", args.interface, "--channel", args.channel]
     if args.rt_priority:
         argv.append("--rt")
+    if getattr(args, "console", False):
+        return _up_with_console(argv + ["--duration", str(args.duration)], out)
     feed = None
     if args.viewer or args.web:  # fed from here, also when the run is inside UML
         from hil.live_viewer import LiveViewer, find_viewer
@@ -546,6 +548,37 @@ def _cmd_up(args) -> int:
             feed.stop()
     _print_verdict(s, out)
     return 0
+
+
+def _up_with_console(argv: list[str], out: Path) -> int:
+    """``hil up --console``: the run in a child ``hil up`` (its output to ``out/up.log``), the
+    console in this terminal; quitting the console stops the run as Ctrl-C does, and its
+    verdict lines are printed here."""
+    from hil.console import _app_classes
+
+    log_path = out / "up.log"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "plant.jsonl").unlink(missing_ok=True)  # the console must not show an old run
+    with log_path.open("w") as log:
+        child = subprocess.Popen([sys.executable, "-m", "hil.cli", "up", *argv[1:]],
+                                 stdout=log, stderr=subprocess.STDOUT,
+                                 stdin=subprocess.DEVNULL, start_new_session=True)
+    try:
+        app_cls, _ = _app_classes()
+        app_cls(out, title_note=f"hil up output: {log_path}").run()
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGINT)
+        try:
+            rc = child.wait(STOP_GRACE_S + 30)
+        except subprocess.TimeoutExpired:
+            os.killpg(child.pid, signal.SIGKILL)
+            rc = child.wait()
+    lines = log_path.read_text().splitlines()
+    start = max((i for i, x in enumerate(lines) if " ticks, " in x and "(" in x), default=None)
+    for line in lines[start:] if start is not None else lines[-15:]:
+        print(line)
+    return rc
 
 
 def _bus_args(p) -> None:
@@ -605,6 +638,9 @@ def register(sub) -> None:
     u.add_argument("--out", metavar="DIR", help="output folder (default runs/up)")
     u.add_argument("--viewer", action="store_true",
                    help="open the rerun viewer (.venv/bin/rerun) fed live from the run folder")
+    u.add_argument("--console", action="store_true",
+                   help="show hil console in this terminal (the run's output goes to "
+                        "OUT/up.log); quitting it (q) stops the run")
     u.add_argument("--web", action="store_true",
                    help="serve the rerun web viewer on 127.0.0.1 (port 9090), print its URL")
     u.add_argument("--kill-flight-at", type=number(ge=0, le=MAX_DURATION_S),

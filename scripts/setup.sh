@@ -4,7 +4,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-DEB_PACKAGES=(user-mode-linux busybox-static can-utils iproute2 kmod)
+# tmux: the console test drives `hil up --console` in a real 80x24 terminal
+DEB_PACKAGES=(user-mode-linux busybox-static can-utils iproute2 kmod tmux)
 missing=()
 for p in "${DEB_PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || missing+=("$p")

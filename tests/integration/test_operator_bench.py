@@ -259,3 +259,64 @@ def test_console_on_hil_up_injects_and_shows_the_detection(tmp_path):
     assert [(f["thruster"], f["type"]) for f in s["faults"]] == [("X+", "stuck_on")]
     assert s["faults"][0]["clear_t_s"] is not None
     assert s["detections"][0]["thruster"] == "X+" and s["detections"][0]["correct"]
+
+
+def _tmux(*args: str) -> str:
+    return subprocess.run(["tmux", *args], capture_output=True, text=True, timeout=30).stdout
+
+
+@pytest.mark.skipif(not _uml_ok(), reason="user-mode-linux is not installed")
+def test_hil_up_console_in_a_real_80x24_terminal(tmp_path):
+    """`hil up --console` in a tmux terminal of 80x24 (user-mode Linux here): the fault panel
+    by keyboard injects a stuck-on, the acknowledgement and the detection are read off the
+    screen, `hil fault clear` from a second terminal is acknowledged, q stops the run and its
+    verdict is printed, the summary kept."""
+    out = tmp_path / "up"
+    sock = str(tmp_path / "tmux.sock")
+    hil = str(REPO_ROOT / ".venv" / "bin" / "hil")
+    cmd = f"cd {REPO_ROOT} && {hil} up --console --out {out}; echo EXIT=$?; sleep 30"
+
+    def screen() -> str:
+        return _tmux("-S", sock, "capture-pane", "-p", "-t", "op")
+
+    def wait_screen(text: str, timeout_s: float) -> str:
+        t_end = time.monotonic() + timeout_s
+        while time.monotonic() < t_end:
+            s = screen()
+            if text in s:
+                return s
+            time.sleep(0.3)
+        raise AssertionError(f"{text!r} not on screen:\n{screen()}")
+
+    _tmux("-S", sock, "new-session", "-d", "-s", "op", "-x", "80", "-y", "24",
+          "env", "TERM=xterm-256color", "RERUN_ANALYTICS=0", "sh", "-c", cmd)
+    try:
+        wait_screen("vehicle generic", 120)
+        t_end = time.monotonic() + 60
+        while not (out / "control" / "bridge.json").exists():
+            assert time.monotonic() < t_end
+            time.sleep(0.3)
+        _tmux("-S", sock, "send-keys", "-t", "op", "f")
+        wait_screen("FAULT PANEL", 10)
+        _tmux("-S", sock, "send-keys", "-t", "op", "X+")
+        # thruster -> type -> fraction -> at -> Inject
+        for _ in range(4):
+            _tmux("-S", sock, "send-keys", "-t", "op", "Tab")
+            time.sleep(0.2)
+        _tmux("-S", sock, "send-keys", "-t", "op", "Enter")
+        ack = wait_screen("ok: plant accepted inject stuck_on X+", 30)
+        assert "vehicle generic" in ack
+        _tmux("-S", sock, "send-keys", "-t", "op", "Escape")
+        wait_screen("detected stuck_on X+", 60)
+        clr = subprocess.run([*HIL, "fault", "clear", "--run", str(out)], capture_output=True,
+                             text=True, timeout=60, cwd=REPO_ROOT)
+        assert clr.stdout.startswith("ok: plant accepted clear all"), clr.stderr
+        _tmux("-S", sock, "send-keys", "-t", "op", "q")
+        end = wait_screen("EXIT=", 120)
+        assert "EXIT=0" in end and "detection: stuck_on X+" in end, end
+    finally:
+        _tmux("-S", sock, "kill-server")
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interrupted"] is True
+    assert s["detections"][0]["thruster"] == "X+" and s["detections"][0]["correct"]
+    assert _left_behind(out) == []
