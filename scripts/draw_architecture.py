@@ -26,7 +26,8 @@ DOCS = REPO / "docs"
 PROCESSES = {
     "PLANT": "plant process\npython -m hil.nodes plant\n(time master in lockstep)",
     "FLIGHT": "flight process\npython -m hil.nodes flight\n(200 ms tick)",
-    "PANEL": "fault panel\nhil fault / hil console\n(or the panel bridge,\npython -m hil.panel_server)",
+    "PANEL": ("fault panel\nhil fault / hil console\n(or the panel bridge,\n"
+              "python -m hil.panel_server)"),
 }
 FILES = ("plant.jsonl, flight.jsonl (one line per tick)", "bus.log (candump), run.rrd, "
          "summary.json", "control/ (fault requests, stop)")
