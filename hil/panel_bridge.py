@@ -128,10 +128,10 @@ def send_via_run(cmd: FaultCmd, run: Path, timeout_s: float) -> FaultAck:
                 p.unlink()
 
 
-def serve(run: Path, interface: str, channel: str, stop, send_and_wait) -> int:
+def serve(run: Path, interface: str, channel: str, stop, send_and_wait, log=None) -> int:
     """The bridge's loop: answer every request in ``run/control`` until ``stop()``, each sent
     with ``send_and_wait(cmd, interface, channel, timeout_s)`` (``hil.panel.send_and_wait``:
-    ``hil.panel_server`` runs it so)."""
+    ``hil.panel_server`` runs it so); ``log(text)``, when given, gets a line per request."""
     d = control_dir(run)
     d.mkdir(parents=True, exist_ok=True)
     info = {"interface": interface, "channel": channel, "pid": os.getpid(),
@@ -162,8 +162,9 @@ def serve(run: Path, interface: str, channel: str, stop, send_and_wait) -> int:
                 _answer(d, entry.name, {"request_id": ack.request_id, "status": int(ack.status),
                                         "reason": int(ack.reason), "kind": int(ack.kind),
                                         "bus_s": round(time.monotonic() - t0, 4)})
-                print(f"panel bridge: request {cmd.request_id}: FAULT_ACK after "
-                      f"{time.monotonic() - t0:.3f} s on the bus", flush=True)
+                if log is not None:
+                    log(f"panel bridge: request {cmd.request_id}: FAULT_ACK after "
+                        f"{time.monotonic() - t0:.3f} s on the bus")
             except BusError as exc:
                 _answer(d, entry.name, {"error": str(exc)})
             except Exception as exc:  # noqa: BLE001 - a request never kills the bridge

@@ -21,7 +21,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")
     a = p.parse_args(argv)
-    return serve(Path(a.run), a.interface, a.channel, Stop(), send_and_wait)
+    return serve(Path(a.run), a.interface, a.channel, Stop(), send_and_wait,
+                 log=lambda text: print(text, flush=True))
 
 
 if __name__ == "__main__":
