@@ -371,6 +371,14 @@ def _app_classes():
             self.set_interval(self.period_s, self.refresh_view)
 
         def refresh_view(self, force: bool = False) -> None:
+            from textual.css.query import NoMatches
+
+            try:
+                self._refresh_view(force)
+            except NoMatches:  # a timer tick while the app closes: the panes are gone
+                pass
+
+        def _refresh_view(self, force: bool) -> None:
             t0 = time.perf_counter()
             changed = self.model.feed(*self.follow.read())
             if not (changed or force):

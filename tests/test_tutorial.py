@@ -97,7 +97,9 @@ def test_the_tutorial_as_written(tmp_path):
                     assert re.fullmatch(_pattern(expected, run), text), (cmd, text, expected)
                 assert r.returncode == (2 if text.startswith("error:") else 0), (cmd, text)
                 if "inject --thruster X+" in cmd:
-                    t_end = time.monotonic() + 60
+                    # Real time, as the tutorial runs it: on a machine loaded past its cores
+                    # the detection can take longer (late gyro samples, overruns).
+                    t_end = time.monotonic() + 180
                     while "flight: detection: stuck_on of X+" not in up_log.read_text():
                         assert time.monotonic() < t_end, up_log.read_text()[-3000:]
                         time.sleep(0.5)
