@@ -31,8 +31,17 @@ def _num(x: float) -> float | int:
     return int(x) if float(x).is_integer() else x
 
 
-def _signal(s: SignalDef, receivers: list[str]) -> Signal:
+# Signals that carry a thruster index (63: none / not applicable).
+THRUSTER_INDEX_SIGNALS = {("FDIR_STATUS", "thruster_a"), ("FDIR_STATUS", "thruster_b"),
+                          ("FAULT_CMD", "thruster")}
+NO_THRUSTER_VALUE = 63
+
+
+def _signal(s: SignalDef, receivers: list[str],
+            names: dict[int, str] | None = None) -> Signal:
     choices = dict(sorted(s.choices.items())) if s.choices else None
+    if names is not None:
+        choices = dict(sorted({**(choices or {}), **names}.items()))
     return Signal(
         name=s.name,
         start=s.start_bit,
@@ -48,7 +57,7 @@ def _signal(s: SignalDef, receivers: list[str]) -> Signal:
     )
 
 
-def _message(f: FrameDef) -> Message:
+def _message(f: FrameDef, thruster_names: list[str] | None = None) -> Message:
     receivers = [_node_name(n) for n in f.receivers]
     header = [
         Signal(
@@ -74,7 +83,8 @@ def _message(f: FrameDef) -> Message:
         frame_id=f.frame_id,
         name=f.name,
         length=FRAME_BYTES,
-        signals=header + [_signal(s, receivers) for s in f.signals],
+        signals=header + [_signal(s, receivers, _index_names(f, s, thruster_names))
+                          for s in f.signals],
         comment=f.comment or None,
         senders=[_node_name(f.sender)],
         cycle_time=None if f.cycle_s is None else round(f.cycle_s * 1000),
@@ -82,10 +92,25 @@ def _message(f: FrameDef) -> Message:
     )
 
 
-def build_database(catalog: Catalog = CATALOG) -> Database:
+def _index_names(f: FrameDef, s: SignalDef,
+                 thruster_names: list[str] | None) -> dict[int, str] | None:
+    """A value table for a thruster-index signal: the vehicle's names and 63 = none."""
+    if thruster_names is None:
+        return None
+    base = f.name.rstrip("0123456789").rstrip("_")
+    if (base, s.name) not in THRUSTER_INDEX_SIGNALS:
+        return None
+    return {**dict(enumerate(thruster_names)), NO_THRUSTER_VALUE: "none"}
+
+
+def build_database(catalog: Catalog = CATALOG,
+                   thruster_names: list[str] | None = None) -> Database:
+    """The catalog as a cantools database; with ``thruster_names`` (one vehicle's, in index
+    order) the thruster-index signals get value tables: each index's name, 63 = none."""
     nodes = sorted({n for f in catalog.frames for n in (f.sender, *f.receivers)})
     return Database(
-        messages=[_message(f) for f in sorted(catalog.frames, key=lambda f: f.frame_id)],
+        messages=[_message(f, thruster_names)
+                  for f in sorted(catalog.frames, key=lambda f: f.frame_id)],
         nodes=[Node(_node_name(n), comment=None) for n in nodes],
         version=DBC_VERSION,
     )
@@ -97,5 +122,5 @@ def database() -> Database:
     return build_database()
 
 
-def dbc_text(catalog: Catalog = CATALOG) -> str:
-    return build_database(catalog).as_dbc_string()
+def dbc_text(catalog: Catalog = CATALOG, thruster_names: list[str] | None = None) -> str:
+    return build_database(catalog, thruster_names).as_dbc_string()

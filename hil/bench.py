@@ -458,8 +458,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("bench", help="timing figures over the bus: jitter, compute, latency, "
-                                     "lockstep speed, allocator, bus load")
+    import argparse
+
+    summary = ("timing figures over the bus: jitter, compute, latency, lockstep speed, "
+               "allocator, bus load")
+    p = sub.add_parser("bench", help=summary, description=summary,
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog="""examples:
+  hil bench                              every part, orel, 60 s (a few minutes)
+  hil bench --parts bus                  vcan0 one way / round trip only
+  hil bench --duration 20 --stress --rt  a short run under CPU load, SCHED_FIFO asked
+
+It prints one table and writes runs/bench/bench.json and histograms; exit 0 when every
+figure was measured (goals not met are shown, not failed).""")
     add_arguments(p)
 
 

@@ -26,6 +26,7 @@ COMMAND_MODULES = (
     "hil.thresholds_cmd",
     "hil.run",
     "hil.panel",
+    "hil.console",
     "hil.runall",
     "hil.report",
     "hil.bench",
@@ -40,9 +41,19 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("thruster-hil")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "(not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="hil", description="Thruster hardware-in-the-loop emulator.")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)

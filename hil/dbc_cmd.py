@@ -19,6 +19,9 @@ def register(sub) -> None:
         description="Generate the DBC from the message catalog.",
     )
     p.add_argument("--out", metavar="FILE", help="write the DBC here (default: stdout)")
+    p.add_argument("--vehicle", metavar="V",
+                   help="a DBC for this vehicle: value tables name the thruster indices "
+                        "(FDIR_STATUS.thruster_a/b, FAULT_CMD.thruster) and 63 = none")
     p.add_argument(
         "--check",
         action="store_true",
@@ -63,7 +66,15 @@ def load_table(bitrate_bps: int) -> str:
 def run(args: argparse.Namespace) -> int:
     if args.bitrate <= 0:
         raise UsageError(f"hil dbc: --bitrate: expected > 0, got {args.bitrate}")
-    text = dbc_text()
+    names = None
+    if getattr(args, "vehicle", None):
+        from hil.config import load_vehicle
+
+        names = [t.name for t in load_vehicle(args.vehicle).thrusters]
+    text = dbc_text(thruster_names=names)
+    if args.check and names is not None:
+        raise UsageError("hil dbc: --check: expected no --vehicle (bus/hil.dbc is the "
+                         "vehicle-free one), got --vehicle")
     if args.check:
         committed = DBC_PATH.read_bytes() if DBC_PATH.exists() else b""
         if committed != text.encode():

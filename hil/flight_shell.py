@@ -25,7 +25,13 @@ from hil.config import Scenario
 from hil.node_settings import NodeSettings
 from hil.node_shell import Stop, first_record, named_values, say, write_record, xyz_values
 from hil.recorder import JsonlWriter
-from hil.records import FlightRecord, detection_record
+from hil.records import (
+    FlightRecord,
+    detection_record,
+    fdir_action_text,
+    fdir_actions,
+    fdir_view,
+)
 from hil.safe_states import GyroLossWatch, safety_settings
 from hil.scheduler import (
     RateGroup,
@@ -62,6 +68,8 @@ class FlightShell:
         self.late_gyro = 0
         self.lock: FlightLockstep | None = None  # lockstep only (run_lockstep)
         self.last_det = None  # the newest detection, repeated in every FDIR_STATUS
+        self.fdir_before = self.fdir_view = None  # hil.records.fdir_view, last tick's and now
+        self.fdir_actions: list = []
         self.thr_cmd_on_ms = 0  # what the tick's THR_CMD carried, for the record
         self.first = first_record(sc, settings, {"gyro_lost_ticks": self.safety.gyro_lost_ticks})
         self.events.extend(self.first.pop("events"))
@@ -137,6 +145,13 @@ class FlightShell:
         t0 = t1
         if det is not None:
             self.last_det = det
+        view = fdir_view(out, self.names, self.v.manifolds,
+                         [t.manifold for t in self.v.thrusters])
+        self.fdir_actions = fdir_actions(self.fdir_before, view, round(n * self.h, 6))
+        self.fdir_before = self.fdir_view = view
+        for a in self.fdir_actions:
+            self.events.append(fdir_action_text(a))
+            say("flight", self.events[-1])
         fdir = fdir_status(self.last_det, out, self.safe)
         # FLIGHT_TIMING cannot carry the time of its own sending; the record's compute_s does.
         so_far_s = (clk() - t_start) / 1e9
@@ -178,7 +193,10 @@ class FlightShell:
             # What THR_CMD carried (flight/on_ms is the allocator's wish; safe mode zeroes it).
             "thr_cmd_on_ms": self.thr_cmd_on_ms,
             "bus": self.port.counts(),
+            "fdir": self.fdir_view,
         }
+        if self.fdir_actions:
+            rec["fdir_actions"] = self.fdir_actions
         if rt is not None:
             # Real time only: lockstep records stay identical run to run (bit for bit).
             rec.update(rt)

@@ -14,13 +14,17 @@ default) for FAULT_CMD and FAULT_ACK, and through the run folder (``--run``, def
 record in ``RUN/plant.jsonl`` names its vehicle (``config``, see ``hil.nodes``), so thruster
 names are checked against the vehicle actually flying; ``--vehicle`` overrides it (and is
 needed when no run folder is there). Where the kernel has no CAN, ``hil up`` runs inside
-user-mode Linux with its own vcan0: the panel must run in that same instance to reach it.
+user-mode Linux with its own vcan0, which no host process can open: there ``hil up`` runs a
+panel bridge beside the plant, and the request goes through the run folder to it
+(``hil.panel_bridge``); it sends the same FAULT_CMD with ``send_and_wait`` and hands back the
+plant's FAULT_ACK. ``--via auto`` (the default) takes the bridge when the run folder has a live
+one, else the bus; ``--via bus`` / ``--via run`` force one.
 """
 
 from __future__ import annotations
 
 import itertools
-import json
+import sys
 import time
 from pathlib import Path
 
@@ -106,6 +110,17 @@ def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float)
         port.close()
 
 
+def deliver(cmd: FaultCmd, run: Path, via: str, interface: str, channel: str,
+            timeout_s: float) -> FaultAck:
+    """Send ``cmd`` by the path ``via`` names (auto: the run folder's live panel bridge when
+    there is one, else the bus) and return the plant's FAULT_ACK (BusError when none)."""
+    from hil.panel_bridge import bridge_info, send_via_run
+
+    if via == "run" or (via == "auto" and bridge_info(run) is not None):
+        return send_via_run(cmd, run, timeout_s)
+    return send_and_wait(cmd, interface, channel, timeout_s)
+
+
 def _request_id() -> int:
     return (int(time.time() * 1000) + next(_SEQ)) % 256  # FAULT_CMD.request_id is 8 bits
 
@@ -169,14 +184,34 @@ def _cmd(args) -> int:
         return _list(vehicle, source, run)
     cmd = build_command(vehicle, args.action, args.thruster, args.type, args.fraction,
                         args.at, args.clear_at, _request_id())
-    ack = send_and_wait(cmd, args.interface, args.channel, args.timeout)
-    what = f"{args.action} {args.type + ' ' if args.type else ''}{args.thruster or 'all'}"
+    late = past_start_warning(args.at, run)
+    if late:
+        print(late, file=sys.stderr)
+    ack = deliver(cmd, run, args.via, args.interface, args.channel, args.timeout)
+    print(ack_line(ack, args.action, args.type, args.thruster, vehicle.name))
+    return 0 if ack.status == AckStatus.ACCEPTED else 1
+
+
+def ack_line(ack: FaultAck, action: str, kind: str | None, thruster: str | None,
+             vehicle_name: str) -> str:
+    """What the panel prints for the plant's FAULT_ACK (also the console's fault panel)."""
+    what = f"{action} {kind + ' ' if kind else ''}{thruster or 'all'}"
     if ack.status == AckStatus.ACCEPTED:
-        print(f"ok: plant accepted {what} (request {ack.request_id}, vehicle {vehicle.name})")
-        return 0
-    print(f"error: plant rejected {what} (request {ack.request_id}): "
-          f"{AckReason(ack.reason).name.lower()}")
-    return 1
+        return f"ok: plant accepted {what} (request {ack.request_id}, vehicle {vehicle_name})"
+    return (f"error: plant rejected {what} (request {ack.request_id}): "
+            f"{AckReason(ack.reason).name.lower()}")
+
+
+def past_start_warning(at_s: float | None, run: Path) -> str | None:
+    """A warning when ``--at`` is already behind the running plant's time (its last record):
+    the plant then applies the fault at once, not at ``--at``."""
+    if at_s is None:
+        return None
+    _, now = active_faults(read_jsonl(Path(run) / "plant.jsonl"))
+    if now is None or at_s >= now:
+        return None
+    return (f"warning: fault: --at {at_s:g} s is in the past (plant time {now:.1f} s in {run}): "
+            f"the plant applies it at once")
 
 
 def active_faults(records) -> tuple[list[dict], float | None]:
@@ -201,13 +236,40 @@ def _list(vehicle: VehicleCfg, source: str, run: Path) -> int:
     if not active:
         print(f"no fault active in the run at {run}"
               + ("" if now is None else f" (plant time {now:.1f} s)"))
-    for f in active:
-        print(json.dumps(f))
+        return 0
+    print(f"faults active at plant time {now:.1f} s in {run}:")
+    for line in fault_table(active):
+        print(line)
     return 0
 
 
+FAULT_COLUMNS = (("thruster", "thruster", "{}"), ("type", "type", "{}"),
+                 ("fraction", "fraction", "{:g}"), ("t_s", "from [s]", "{:.2f}"),
+                 ("clear_t_s", "until [s]", "{:.2f}"))
+
+
+def fault_table(faults: list[dict]) -> list[str]:
+    """Active faults as an aligned text table (header first); ``-`` for no value."""
+    rows = [[h for _, h, _ in FAULT_COLUMNS]]
+    for f in faults:
+        rows.append(["-" if f.get(k) is None else fmt.format(f[k]) for k, _, fmt in FAULT_COLUMNS])
+    widths = [max(len(r[i]) for r in rows) for i in range(len(FAULT_COLUMNS))]
+    return ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in rows]
+
+
 def register(sub) -> None:
-    p = sub.add_parser("fault", help="fault panel: inject, clear or list faults (running system)")
+    import argparse
+
+    summary = "fault panel: inject, clear or list faults in the running system (hil up)"
+    p = sub.add_parser("fault", help=summary, description=summary,
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog="""examples:
+  hil fault list                                     thrusters and active faults of runs/up
+  hil fault inject --thruster X+ --type stuck_on     now, full thrust
+  hil fault inject --thruster 17 --type degraded --fraction 0.4 --at 30 --clear-at 60
+  hil fault clear --thruster X+                      (no --thruster: every fault)
+
+exit codes: 0 the plant accepted (FAULT_ACK), 1 it rejected (the reason is printed),
+2 bad request or no FAULT_ACK in time (nothing applied).""")
     p.add_argument("action", choices=("inject", "clear", "list"))
     p.add_argument("--thruster", help="thruster name (see `hil fault list`)")
     p.add_argument("--type", choices=list(TYPES), help="fault type (inject)")
@@ -225,6 +287,11 @@ def register(sub) -> None:
                         "runs/up): its vehicle and, for list, its faults")
     p.add_argument("--timeout", type=number(gt=0, le=3600), default=5.0,
                    help="seconds to wait for FAULT_ACK")
+    p.add_argument("--via", choices=("auto", "bus", "run"), default="auto",
+                   help="how the request reaches the plant: run = through the panel bridge of "
+                        "--run (hil up runs one; it works into user-mode Linux), bus = "
+                        "directly on --interface/--channel, auto (default) = run when --run has "
+                        "a live bridge, else bus")
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")
     p.add_argument("--bus", choices=("can", "lcm"), default="can",

@@ -158,6 +158,11 @@ class RrdRecorder:
     def flush(self) -> None:
         self.rec.flush(timeout_sec=5.0)
 
+    def close(self) -> None:
+        """Flush and end the recording (the file gets its footer; ``rerun rrd verify``)."""
+        self.flush()
+        self.rec.disconnect()
+
 
 def build_rrd(run_dir: Path, out: Path | None = None, recording_id: str | None = None) -> Path:
     """Rebuild ``run.rrd`` from the run's JSON lines (plant and flight merged by tick)."""
@@ -170,7 +175,7 @@ def build_rrd(run_dir: Path, out: Path | None = None, recording_id: str | None =
         ("plant", read_jsonl(run_dir / "plant.jsonl")),
         ("flight", read_jsonl(run_dir / "flight.jsonl")),
     ))
-    rec.flush()
+    rec.close()
     return out
 
 

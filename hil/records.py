@@ -93,6 +93,54 @@ class FlightRecord(TypedDict):
     safe: NotRequired[bool]
     thr_cmd_on_ms: NotRequired[int]
     bus: NotRequired[dict[str, int]]
+    # Process runs: the FDIR's state and configuration (``fdir_view``) and what it changed
+    # this tick (``fdir_actions``: manifolds closed, thrusters dropped, given back).
+    fdir: NotRequired[dict[str, Any]]
+    fdir_actions: NotRequired[list[dict[str, Any]]]
+
+
+def fdir_view(out, names: Sequence[str], manifold_names: Sequence[str],
+              manifold_of: Sequence[str]) -> dict[str, Any]:
+    """The FDIR block of a flight record: state, closed manifolds, unavailable thrusters and,
+    of those, the ones dropped (their manifold open; none in safe mode, where all are off).
+    ``manifold_of``: each thruster's manifold name."""
+    closed = [m for m, o in zip(manifold_names, out.manifold_open, strict=True) if not o]
+    off = [n for n, a in zip(names, out.available, strict=True) if not a]
+    safe = str(out.fdir_state) == "safe"
+    return {"state": str(out.fdir_state), "closed_manifolds": closed, "unavailable": off,
+            "dropped": [] if safe else [n for n, m in zip(names, manifold_of, strict=True)
+                                        if n in off and m not in closed]}
+
+
+def fdir_actions(before: dict[str, Any] | None, now: dict[str, Any],
+                 t_s: float) -> list[dict[str, Any]]:
+    """What the FDIR changed between two ``fdir_view`` blocks: ``manifold_closed`` /
+    ``manifold_opened`` (a manifold) and ``thruster_dropped`` / ``thruster_restored`` (a
+    thruster whose manifold stays open). Safe mode (every thruster off) is its own state,
+    not a drop of each thruster."""
+    if before is None:
+        return []
+    acts = []
+    for m in now["closed_manifolds"]:
+        if m not in before["closed_manifolds"]:
+            acts.append({"t_s": t_s, "action": "manifold_closed", "manifold": m})
+    for m in before["closed_manifolds"]:
+        if m not in now["closed_manifolds"]:
+            acts.append({"t_s": t_s, "action": "manifold_opened", "manifold": m})
+    if "safe" not in (before["state"], now["state"]):
+        dropped = now.get("dropped", [])
+        was = before.get("dropped", [])
+        acts += [{"t_s": t_s, "action": "thruster_dropped", "thruster": n}
+                 for n in dropped if n not in was]
+        acts += [{"t_s": t_s, "action": "thruster_restored", "thruster": n}
+                 for n in was if n not in dropped]
+    return acts
+
+
+def fdir_action_text(a: dict[str, Any]) -> str:
+    what = f"manifold {a['manifold']}" if "manifold" in a else f"thruster {a['thruster']}"
+    verb = a["action"].split("_", 1)[1]
+    return f"fdir: {what} {verb} at {a['t_s']:.1f} s"
 
 
 def truth_fields(truth, err_q: np.ndarray) -> TruthFields:

@@ -251,6 +251,21 @@ def _run_section(run: Run, pngs: list[Path]) -> list[str]:
         out.append(f"- **missed**: {fault_text(f)} at {fmt_s(f.get('t_s'))} s")
     if not run.detections:
         out.append("- detections: none")
+    for a in s.get("fdir_actions") or []:
+        what = (f"manifold {a['manifold']}" if "manifold" in a
+                else f"thruster {thruster_text(a.get('thruster'))}")
+        out.append(f"- FDIR response: {what} {str(a.get('action', '')).split('_', 1)[-1]} at "
+                   f"{fmt_s(a.get('t_s'))} s")
+    if s.get("interrupted"):
+        out.append(f"- interrupted: {s.get('interrupted_by') or 'yes'}, after "
+                   f"{s.get('ticks', '-')} ticks")
+    dv = s.get("delta_v_B_m_s")
+    if isinstance(dv, list) and len(dv) == 3 and any(abs(float(x)) > 0 for x in dv):
+        want = (run.scenario.cfg.expect.delta_v_B_m_s if run.scenario is not None
+                and run.scenario.cfg.expect is not None else None)
+        out.append(f"- delta-v (body) [{', '.join(f'{float(x):.3f}' for x in dv)}] m/s"
+                   + (f", expected [{', '.join(f'{float(x):g}' for x in want)}] m/s"
+                      if want is not None else ""))
     for f in run.thruster_faults:
         seed = seed_latency(run, f)
         d = answer_to(run, f)

@@ -34,6 +34,7 @@ import yaml
 from hil.argtypes import number
 from hil.config import MAX_DURATION_S, REPO_ROOT, load_scenario
 from hil.errors import BusError, UsageError
+from hil.panel_bridge import control_dir, request_stop, stop_path
 from hil.recorder import RrdRecorder, build_rrd, merge_by_tick, read_jsonl
 from hil.summary import summarise
 from hil.timing import timing_summary
@@ -54,8 +55,12 @@ def _vcan_ready(channel: str) -> bool:
     return vcan_present(channel)
 
 
-def maybe_in_uml(args, argv: list[str]) -> int | None:
-    """Re-run this command inside user-mode Linux when socketcan has no vcan here."""
+def maybe_in_uml(args, argv: list[str], out: Path | None = None) -> int | None:
+    """Re-run this command inside user-mode Linux when socketcan has no vcan here.
+
+    ``out``: the run folder; Ctrl-C or SIGTERM here then asks the supervisor inside to stop
+    through it (``hil.panel_bridge.request_stop``) and waits for it to write its result, as
+    natively; a second Ctrl-C, or no end within ``STOP_GRACE_S``, stops UML at once."""
     if args.interface != "socketcan" or os.environ.get(INSIDE_UML_ENV):
         return None
     if _vcan_ready(args.channel):
@@ -65,7 +70,18 @@ def maybe_in_uml(args, argv: list[str]) -> int | None:
     print("hil: this kernel has no CAN; running inside user-mode Linux (real vcan0 there)",
           flush=True)
     env = dict(os.environ, **{INSIDE_UML_ENV: "1"})
-    return run_in_uml([sys.executable, "-m", "hil.cli", *argv], env=env, cwd=os.getcwd())
+    on_interrupt = None
+    if out is not None:
+        def on_interrupt(why: str) -> None:
+            print(f"hil: {why}; asking the run inside user-mode Linux to stop and write its "
+                  f"result", file=sys.stderr, flush=True)
+            request_stop(out, why)
+    with stop_on_signals():
+        return run_in_uml([sys.executable, "-m", "hil.cli", *argv], env=env, cwd=os.getcwd(),
+                          on_interrupt=on_interrupt, interrupt_grace_s=STOP_GRACE_S)
+
+
+STOP_GRACE_S = 30.0  # how long an interrupted run inside UML gets to write its result
 
 
 class _Tail:
@@ -93,9 +109,20 @@ class _Tail:
 
 
 class BusMonitor(threading.Thread):
-    """Logs every frame on the bus to a candump file (a passive third node)."""
+    """Logs every frame on the bus to a candump file (a passive third node).
 
-    def __init__(self, interface: str, channel: str, path: Path) -> None:
+    Every frame is marked received (``R``): the monitor sends nothing (SocketCAN reports the
+    frames of other sockets of the same host as local, which python-can would write as ``T``).
+    With ``sim_time`` (lockstep) the stamps are simulated time, not the wall clock: a frame is
+    stamped with the time of the last SYNC the monitor heard (its ``sim_time_ms``) plus 1 us
+    per frame since that SYNC, so the log keeps the bus order and spans the simulated
+    duration (``cantools plot``, ``python -m can.player`` then show the run's own time base).
+    Frames before the first SYNC count from 0. In real time the stamps are the kernel's.
+    """
+
+    FRAME_STEP_S = 1e-6  # between frames of one tick in a simulated-time log
+
+    def __init__(self, interface: str, channel: str, path: Path, sim_time: bool = False) -> None:
         super().__init__(daemon=True)
         import can
 
@@ -106,11 +133,30 @@ class BusMonitor(threading.Thread):
         self.frames = 0
         self.error: str | None = None  # why bus.log stopped (disk full...), None if it did not
         self._halt = threading.Event()
+        self.sim_time = sim_time
+        self._sync_s, self._since_sync = 0.0, 0
+
+    def _stamp(self, m) -> None:
+        """Received, and in simulated time when asked (see the class doc)."""
+        from bus.catalog import CATALOG, SYNC_ID
+        from bus.codec import range_problem, unpack
+
+        m.is_rx = True
+        if not self.sim_time:
+            return
+        if m.arbitration_id == SYNC_ID and not m.is_error_frame and len(m.data) == 8:
+            f = CATALOG.frame("SYNC")
+            raws = unpack(f, bytes(m.data))
+            if range_problem(f, raws) is None:  # a SYNC failing its checks is not used
+                self._sync_s, self._since_sync = raws["sim_time_ms"] / 1000.0, 0
+        m.timestamp = self._sync_s + self._since_sync * self.FRAME_STEP_S
+        self._since_sync += 1
 
     def run(self) -> None:
         while not self._halt.is_set():
             m = self.bus.recv(0.1)
             if m is not None and self.error is None:
+                self._stamp(m)
                 try:
                     self.writer.on_message_received(m)
                 except OSError as exc:  # the bus log is lost from here; the run goes on
@@ -185,10 +231,11 @@ class LcmMonitor(threading.Thread):
             self.error = self.error or f"bus.log: {exc.strerror or exc}"
 
 
-def _monitor(args, path: Path):
+def _monitor(args, path: Path, sim_time: bool = False):
+    """The bus.log writer of this bus (over LCM the stamps stay the wall clock's)."""
     if args.interface == "lcm":
         return LcmMonitor(args.channel, path)
-    return BusMonitor(args.interface, args.channel, path)
+    return BusMonitor(args.interface, args.channel, path, sim_time=sim_time)
 
 
 def resolve_bus(args, sc=None) -> None:
@@ -339,7 +386,8 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
     for name in ("plant.jsonl", "flight.jsonl", "run.rrd", "summary.json", "plant.ready",
                  "flight.ready", "bus.log", "netns.pid"):
         (out / name).unlink(missing_ok=True)
-    monitor = _monitor(args, out / "bus.log")
+    reset_control(out)  # stale requests or a stop request of an earlier run in this folder
+    monitor = _monitor(args, out / "bus.log", sim_time=args.mode == "lockstep")
     monitor.start()
     logger = _start_lcm_logger(args, out) if getattr(args, "lcm_log", False) else None
     if args.interface == "lcm":
@@ -357,9 +405,10 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
     procs: dict[str, subprocess.Popen] = {}
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     t_wall = time.monotonic()
+    stop_file = stop_path(out)
     killed_flight_at = getattr(args, "kill_flight_at", None)
     killed: dict[str, tuple[float, float]] = {}
-    interrupted = False
+    interrupted: str | None = None  # what ended the run before its end (a signal, a request)
     try:
         procs["flight"] = subprocess.Popen(_node_cmd("flight", scenario_path, out, args),
                                            stdout=logs["flight"], stderr=subprocess.STDOUT,
@@ -369,6 +418,12 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         procs["plant"] = subprocess.Popen(
             _node_cmd("plant", scenario_path, out, args, start_after=out / "flight.ready"),
             stdout=logs["plant"], stderr=subprocess.STDOUT, env=env, cwd=REPO_ROOT)
+        if endless:  # hil up: the fault panel's way in through the run folder (hil.panel_bridge)
+            logs["panel"] = (out / "panel.log").open("w")
+            procs["panel"] = subprocess.Popen(
+                [sys.executable, "-m", "hil.panel_server", "--run", str(out),
+                 "--interface", args.interface, "--channel", args.channel],
+                stdout=logs["panel"], stderr=subprocess.STDOUT, env=env, cwd=REPO_ROOT)
         _wait_ready(out / "flight.ready", procs["flight"])
         _wait_ready(out / "plant.ready", procs["plant"])
         tails = {"plant": _Tail(out / "plant.jsonl"), "flight": _Tail(out / "flight.jsonl")}
@@ -400,11 +455,18 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                 last_print = now
             if done:
                 break
+            if stop_file.exists():  # the host's Ctrl-C or SIGTERM, through the run folder
+                interrupted = _stop_reason(stop_file)
+                print(f"hil: {interrupted}, stopping the processes", file=sys.stderr, flush=True)
+                break
             time.sleep(0.05)
-    except KeyboardInterrupt:
-        interrupted = True
-        print("hil: interrupted, stopping the processes", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        interrupted = str(exc) or "interrupted (SIGINT)"
+        print(f"hil: {interrupted}, stopping the processes", file=sys.stderr, flush=True)
     finally:
+        # A second Ctrl-C or SIGTERM must not cut the clean-up that keeps the run's result.
+        old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)} \
+            if threading.current_thread() is threading.main_thread() else {}
         for p in procs.values():
             _stop(p)
         monitor.stop()
@@ -412,6 +474,8 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
             _stop_lcm_logger(logger, args.telemetry)
         for f in logs.values():
             f.close()
+        if rrd is not None:
+            rrd.close()
     io_errors = [monitor.error] if monitor.error else []
     if rrd is None:
         try:
@@ -445,10 +509,52 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                   if args.interface == "lcm" else "")},
         expected_ticks=None if endless else n_ticks,
         exit_codes={k: p.returncode for k, p in procs.items()}, killed=killed,
-        interrupted=interrupted and not endless, io_error="; ".join(io_errors) or None,
+        interrupted=bool(interrupted) and not endless, io_error="; ".join(io_errors) or None,
     )
+    # An interrupted run keeps its result: the ticks done are in ``ticks``, what ended it here.
+    summary["interrupted"] = bool(interrupted)
+    summary["interrupted_by"] = interrupted
     write_summary(out, summary)
+    for s, handler in old.items():
+        signal.signal(s, handler)
     return summary
+
+
+def reset_control(out: Path) -> None:
+    """Empty ``out/control`` (``hil.panel_bridge``) before a run starts in ``out``."""
+    d = control_dir(out)
+    if d.is_dir():
+        for f in d.iterdir():
+            with contextlib.suppress(OSError):
+                f.unlink()
+
+
+def _stop_reason(stop_file: Path) -> str:
+    try:
+        return str(json.loads(stop_file.read_text()).get("why") or "stop requested")
+    except (OSError, ValueError, AttributeError):
+        return "stop requested"
+
+
+class _Signalled(KeyboardInterrupt):
+    """SIGTERM (``timeout``, ``kill``) handled as Ctrl-C: the run stops and keeps its result."""
+
+
+@contextlib.contextmanager
+def stop_on_signals():
+    """SIGINT and SIGTERM raise ``KeyboardInterrupt`` naming the signal, for the duration."""
+    def handler(signum, _frame):
+        raise _Signalled(f"interrupted ({signal.Signals(signum).name})")
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 def write_summary(out: Path, summary: dict) -> None:
@@ -541,8 +647,23 @@ def _batch_policy() -> None:
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
 
 
+def scenario_path(arg: str, option: str = "SCENARIO") -> Path:
+    """A scenario file, or the name of one in ``configs/scenarios`` (``S000-stuck``), as
+    vehicles are named; a name that is neither gets the list of names."""
+    from hil.config import SCENARIO_DIR
+
+    p = Path(arg)
+    if p.exists() or p.suffix in (".yaml", ".yml"):
+        return p
+    named = SCENARIO_DIR / f"{arg}.yaml"
+    if named.exists():
+        return named
+    raise UsageError(f"{option}: expected a scenario file or one of "
+                     f"{sorted(q.stem for q in SCENARIO_DIR.glob('*.yaml'))}, got {arg!r}")
+
+
 def _cmd_run(args) -> int:
-    scenario = Path(args.scenario)
+    scenario = scenario_path(args.scenario, "hil run: SCENARIO")
     sc = load_scenario(scenario)  # config errors exit 2 before anything starts
     resolve_bus(args, sc)
     out = Path(args.out or Path("runs") / sc.cfg.name)
@@ -556,11 +677,12 @@ def _cmd_run(args) -> int:
     argv += _lcm_argv(args)
     rc = maybe_in_netns(args, argv)
     if rc is None:
-        rc = maybe_in_uml(args, argv)
+        rc = maybe_in_uml(args, argv, out.resolve())
     if rc is not None:
         return rc
     _batch_policy()
-    s = supervise(scenario.resolve(), out.resolve(), args)
+    with stop_on_signals():
+        s = supervise(scenario.resolve(), out.resolve(), args)
     _print_verdict(s, out)
     return EXIT_CODES[s["verdict"]]
 
@@ -568,7 +690,7 @@ def _cmd_run(args) -> int:
 def _cmd_up(args) -> int:
     check_writable(Path(args.out or "runs/up"))  # before anything is made or boots
     if args.scenario:
-        scenario = Path(args.scenario).resolve()
+        scenario = scenario_path(args.scenario, "hil up: --scenario").resolve()
         resolve_bus(args, load_scenario(scenario))  # config errors exit 2 before anything
     else:
         resolve_bus(args)
@@ -590,15 +712,63 @@ def _cmd_up(args) -> int:
     if args.rt_priority:
         argv.append("--rt")
     argv += _lcm_argv(args)
-    rc = maybe_in_netns(args, argv)
-    if rc is None:
-        rc = maybe_in_uml(args, argv)
-    if rc is not None:
-        return rc
-    _batch_policy()
-    s = supervise(scenario, out, args, viewer=args.viewer, endless=True)
+    if getattr(args, "console", False):
+        return _up_with_console(argv + ["--duration", str(args.duration)], out)
+    feed = None
+    if args.viewer or args.web:  # fed from here, also when the run is inside UML
+        from hil.live_viewer import LiveViewer, find_viewer
+
+        if args.viewer:
+            find_viewer()  # one line and exit 2 before anything boots when it is missing
+        feed = LiveViewer(out, recording_id=scenario.stem, web=args.web)
+        if feed.url:
+            print(f"hil: web viewer at {feed.url}", flush=True)
+        feed.start()
+    try:
+        rc = maybe_in_netns(args, argv)
+        if rc is None:
+            rc = maybe_in_uml(args, argv, out)
+        if rc is not None:
+            return rc
+        _batch_policy()
+        with stop_on_signals():
+            s = supervise(scenario, out, args, endless=True)
+    finally:
+        if feed is not None:
+            feed.stop()
     _print_verdict(s, out)
     return 0
+
+
+def _up_with_console(argv: list[str], out: Path) -> int:
+    """``hil up --console``: the run in a child ``hil up`` (its output to ``out/up.log``), the
+    console in this terminal; quitting the console stops the run as Ctrl-C does, and its
+    verdict lines are printed here."""
+    from hil.console import _app_classes
+
+    log_path = out / "up.log"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "plant.jsonl").unlink(missing_ok=True)  # the console must not show an old run
+    with log_path.open("w") as log:
+        child = subprocess.Popen([sys.executable, "-m", "hil.cli", "up", *argv[1:]],
+                                 stdout=log, stderr=subprocess.STDOUT,
+                                 stdin=subprocess.DEVNULL, start_new_session=True)
+    try:
+        app_cls, _ = _app_classes()
+        app_cls(out, title_note=f"hil up output: {log_path}").run()
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGINT)
+        try:
+            rc = child.wait(STOP_GRACE_S + 30)
+        except subprocess.TimeoutExpired:
+            os.killpg(child.pid, signal.SIGKILL)
+            rc = child.wait()
+    lines = log_path.read_text().splitlines()
+    start = max((i for i, x in enumerate(lines) if " ticks, " in x and "(" in x), default=None)
+    for line in lines[start:] if start is not None else lines[-15:]:
+        print(line)
+    return rc
 
 
 def _bus_args(p) -> None:
@@ -622,9 +792,37 @@ def _bus_args(p) -> None:
                         "(turns --telemetry on)")
 
 
+RUN_EPILOG = """examples:
+  hil run S000-stuck                     a reference scenario by name (configs/scenarios)
+  hil run my.yaml --mode realtime        a scenario file, real time
+  hil run S000-stuck --out runs/a        then: hil report runs/a
+
+exit codes: 0 expectations met, 1 not met, 2 usage/configuration error, 3 the run failed.
+Ctrl-C or SIGTERM stops the run and keeps its result (summary.json marked interrupted)."""
+
+UP_EPILOG = """examples:
+  hil up                                 the generic vehicle in real time, until Ctrl-C
+  hil up --vehicle orel --out runs/up    then, in another terminal:
+  hil console                            watch it (and inject from its fault panel)
+  hil fault inject --thruster X+ --type stuck_on
+  hil report runs/up                     after Ctrl-C: the verdict of what ran
+
+Where the kernel has no CAN the processes run inside user-mode Linux; hil fault and hil
+console reach them through the run folder (--out)."""
+
+
+def _help(sub, name: str, summary: str, epilog: str):
+    import argparse
+
+    return sub.add_parser(name, help=summary, description=summary, epilog=epilog,
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
 def register(sub) -> None:
-    p = sub.add_parser("run", help="run a scenario over the bus and judge it (exit 0/1/2)")
-    p.add_argument("scenario", metavar="SCENARIO.yaml")
+    p = _help(sub, "run", "run a scenario over the bus and judge it against its expectations",
+              RUN_EPILOG)
+    p.add_argument("scenario", metavar="SCENARIO",
+                   help="a scenario file, or the name of one in configs/scenarios")
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/<scenario name>)")
     p.add_argument("--kill-flight-at", type=number(ge=0, le=MAX_DURATION_S), metavar="T",
@@ -632,14 +830,21 @@ def register(sub) -> None:
     _bus_args(p)
     p.set_defaults(func=_cmd_run)
 
-    u = sub.add_parser("up", help="bring plant and flight up until Ctrl-C (inject with hil fault)")
+    u = _help(sub, "up", "bring plant and flight up until Ctrl-C; watch with hil console, inject "
+                         "with hil fault", UP_EPILOG)
     u.add_argument("--vehicle", default="generic")
-    u.add_argument("--scenario", help="scenario file instead of a bare vehicle")
+    u.add_argument("--scenario", help="scenario file or name instead of a bare vehicle")
     u.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")
     u.add_argument("--duration", type=number(gt=0, le=MAX_DURATION_S), default=3600.0,
                    help="seconds (default 3600)")
     u.add_argument("--out", metavar="DIR", help="output folder (default runs/up)")
-    u.add_argument("--viewer", action="store_true", help="open the rerun viewer live")
+    u.add_argument("--viewer", action="store_true",
+                   help="open the rerun viewer (.venv/bin/rerun) fed live from the run folder")
+    u.add_argument("--console", action="store_true",
+                   help="show hil console in this terminal (the run's output goes to "
+                        "OUT/up.log); quitting it (q) stops the run")
+    u.add_argument("--web", action="store_true",
+                   help="serve the rerun web viewer on 127.0.0.1 (port 9090), print its URL")
     u.add_argument("--kill-flight-at", type=number(ge=0, le=MAX_DURATION_S),
                    help=argparse_suppress())
     _bus_args(u)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -54,7 +55,43 @@ def _split(files: list[Path], jobs: int) -> list[list[Path]]:
     return [g for g in groups if g]
 
 
-def _run_here(files: list[Path], out: Path, args) -> list[dict]:
+class Progress:
+    """``k/N`` scenarios done and the time left, from the summaries as they appear in
+    ``out/<scenario>/`` (written there by this process or by user-mode Linux instances on the
+    shared disk). Time left: the wall time so far times the simulated seconds still to run
+    over those done (the lockstep runs at a roughly steady speed)."""
+
+    def __init__(self, files: list[Path], out: Path, t0_wall: float) -> None:
+        self.dur = {p.stem: load_scenario(p).cfg.duration_s for p in files}
+        self.out, self.t0, self.t0_unix = out, t0_wall, time.time()
+        self.done: list[str] = []
+
+    def poll(self) -> list[str]:
+        """Lines for the scenarios finished since the last call."""
+        lines = []
+        for name in self.dur:
+            f = self.out / name / "summary.json"
+            if name in self.done:
+                continue
+            try:
+                fresh = f.stat().st_mtime >= self.t0_unix - 1
+            except OSError:
+                continue
+            if fresh:
+                self.done.append(name)
+                lines.append(self.line(name))
+        return lines
+
+    def line(self, name: str) -> str:
+        done_s = sum(self.dur[n] for n in self.done)
+        left_s = sum(self.dur.values()) - done_s
+        wall = time.monotonic() - self.t0
+        eta = f", about {wall * left_s / done_s:.0f} s left" if left_s > 0 and done_s else ""
+        return (f"run-all: {len(self.done)}/{len(self.dur)} done ({name}), {wall:.0f} s wall"
+                f"{eta}")
+
+
+def _run_here(files: list[Path], out: Path, args, progress: Progress | None = None) -> list[dict]:
     """Run the scenarios one after the other in this process's environment (vcan0 here)."""
     from hil.run import supervise
 
@@ -74,6 +111,8 @@ def _run_here(files: list[Path], out: Path, args) -> list[dict]:
         for line in s["run_failures"] + s["expectation_failures"]:
             print(f"run-all:   FAILED: {line}", flush=True)
         results.append(s)
+        for line in progress.poll() if progress is not None else []:
+            print(line, flush=True)
     return results
 
 
@@ -103,13 +142,32 @@ def _cmd_run_all(args) -> int:
                     args.mode, "--no-report", "--only", *[p.stem for p in group]]
             return run_in_uml(argv, env=env, cwd=os.getcwd())
 
+        progress = Progress(files, out, t0)
         with ThreadPoolExecutor(max_workers=len(groups)) as pool:
-            codes = list(pool.map(one, groups))
+            running = pool.map(one, groups)
+            watcher_halt = threading.Event()
+
+            def watch() -> None:
+                while not watcher_halt.wait(1.0):
+                    for line in progress.poll():
+                        print(line, flush=True)
+
+            watcher = threading.Thread(target=watch, daemon=True)
+            watcher.start()
+            try:
+                codes = list(running)
+            finally:
+                watcher_halt.set()
+                watcher.join(3)
+            for line in progress.poll():
+                print(line, flush=True)
         if any(c not in (0, 1) for c in codes):
             print(f"run-all: a user-mode Linux instance failed (exit codes {codes})",
                   file=sys.stderr)
     else:
-        _run_here(files, out, args)
+        # Inside a UML instance of a bigger run-all the host shows the progress of all.
+        _run_here(files, out, args,
+                  None if os.environ.get(INSIDE_UML_ENV) else Progress(files, out, t0))
     if args.no_report:
         import json
 
@@ -126,6 +184,7 @@ def _cmd_run_all(args) -> int:
     if not runs:
         print("run-all: no scenario produced a summary", file=sys.stderr)
         return EXIT_RUN_FAILED
+    print(f"run-all: building the report of {len(runs)} run(s) (plots per run) ...", flush=True)
     res = write_report(runs, out / "report")
     print(f"run-all: {len(runs)} scenario(s) in {time.monotonic() - t0:.0f} s wall; report in "
           f"{out / 'report' / 'report.md'}")

@@ -240,6 +240,8 @@ def summarise(
                               if r.get("command_gate")), None),
         "safe_events": [e for r in plant_records + flight_records for e in r.get("events", [])
                         if "safe" in e or "lost" in e],
+        # what the FDIR did about its detections (process runs: hil.records.fdir_actions)
+        "fdir_actions": [a for r in flight_records for a in r.get("fdir_actions", [])],
     }
     safety = {**_first(plant_records, "config").get("safety", {}),
               **_first(flight_records, "config").get("safety", {})}

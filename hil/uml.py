@@ -71,7 +71,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -497,6 +497,8 @@ def run_in_uml(
     channels: Sequence[str] = ("vcan0",),
     stdout: BinaryIO | None = None,
     stderr: BinaryIO | None = None,
+    on_interrupt: Callable[[str], None] | None = None,
+    interrupt_grace_s: float = 30.0,
 ) -> int:
     """Run ``argv`` inside user-mode Linux with a real ``vcan0``; return its exit status.
 
@@ -505,6 +507,12 @@ def run_in_uml(
     ``stderr`` (binary streams) default to this process's. Raises ``UmlError`` when UML is
     not installed, the kernel did not boot, set-up failed or ``timeout_s`` ran out (the
     message ends with the tail of the console), ``UsageError`` on a bad argument.
+
+    ``on_interrupt``: on a ``KeyboardInterrupt`` (Ctrl-C, or a signal the caller turns into
+    one) it is called with the interruption's text and UML gets ``interrupt_grace_s`` to end
+    by itself (the command inside was asked to stop some other way, e.g. through a file);
+    its exit status is then returned as usual. A second interruption, or the grace running
+    out, stops UML at once and re-raises. Without it UML is stopped at once.
     """
     argv = [str(a) for a in argv]
     if not argv:
@@ -592,6 +600,19 @@ def run_in_uml(
                 f"({'the command was still running' if filt.started else 'during boot'})"
                 + _tail_text(filt, err_tail)
             ) from None
+        except KeyboardInterrupt as exc:
+            if on_interrupt is None:
+                _kill_group(proc)
+                raise
+            try:
+                on_interrupt(str(exc) or "interrupted (SIGINT)")
+                proc.wait(timeout=interrupt_grace_s)
+            except subprocess.TimeoutExpired:
+                _kill_group(proc)
+                raise exc from None
+            except BaseException:
+                _kill_group(proc)
+                raise
         except BaseException:
             _kill_group(proc)
             raise

@@ -5,7 +5,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # util-linux: unshare and nsenter, for the private network namespace of LCM runs (hil.netns).
-DEB_PACKAGES=(user-mode-linux busybox-static can-utils iproute2 kmod util-linux)
+# tmux: the console test drives `hil up --console` in a real 80x24 terminal.
+DEB_PACKAGES=(user-mode-linux busybox-static can-utils iproute2 kmod util-linux tmux)
 missing=()
 for p in "${DEB_PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || missing+=("$p")

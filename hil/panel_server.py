@@ -1,0 +1,29 @@
+"""The panel bridge process that ``hil up`` starts beside the plant (``hil.panel_bridge``).
+
+``python -m hil.panel_server --run DIR --interface I --channel C``: serves ``DIR/control``
+with the panel's own ``send_and_wait`` until SIGTERM or SIGINT.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from hil.node_shell import Stop
+from hil.panel import send_and_wait
+from hil.panel_bridge import serve
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m hil.panel_server")
+    p.add_argument("--run", required=True)
+    p.add_argument("--interface", default="socketcan")
+    p.add_argument("--channel", default="vcan0")
+    a = p.parse_args(argv)
+    return serve(Path(a.run), a.interface, a.channel, Stop(), send_and_wait,
+                 log=lambda text: print(text, flush=True))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
