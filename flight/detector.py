@@ -291,6 +291,34 @@ class Effectiveness:
         self.x, self.P = self._trusted[0].copy(), self._trusted[1].copy()
 
 
+def leak_or_deficit(y: np.ndarray, burn_i: np.ndarray, closed_j: np.ndarray) -> float:
+    """Which of two hypotheses explains a residual better, over a window of ticks (seed 002:
+    a leak shows on the ticks its thruster is not commanded; a weak thruster only on its own).
+
+    ``y`` (W,) the residual along the failing candidate i's direction (negative when i gives
+    less than predicted), ``burn_i`` (W,) i's commanded rate change ``|mu_i| eff_i``,
+    ``closed_j`` (W,) the opposite candidate j's closed-valve rate change ``|mu_j| (h -
+    eff_j)``. Each hypothesis is a one-parameter least-squares fit, ``y = -d burn_i`` (i
+    degraded or failed) or ``y = -f closed_j`` (j stuck on): returns ``RSS_leak / RSS_deficit``
+    (below 1: the leak fits better); 1 when the two regressors cannot be told apart (collinear
+    over the window) or there is nothing to fit."""
+    y = np.asarray(y, dtype=float)
+    out = []
+    for x in (np.asarray(burn_i, dtype=float), np.asarray(closed_j, dtype=float)):
+        xx = float(x @ x)
+        if xx <= 0.0:
+            out.append(float(y @ y))
+            continue
+        c = float(x @ y) / xx
+        out.append(float(((y - c * x) ** 2).sum()))
+    rss_def, rss_leak = out
+    b1, b2 = np.asarray(burn_i, float), np.asarray(closed_j, float)
+    den = math.sqrt(float(b1 @ b1) * float(b2 @ b2))
+    if den <= 0.0 or float(b1 @ b2) / den > 0.999 or max(rss_def, rss_leak) <= 0.0:
+        return 1.0
+    return rss_leak / max(rss_def, 1e-300)
+
+
 class Detector:
     """Seed 000 / seed 003 detector over N thrusters.
 

@@ -32,7 +32,16 @@ from common.vehicle import VehicleArrays, VehicleCfg
 from flight.allocator import Allocation, Allocator
 from flight.attitude import AttitudeEstimate, q_rotate_inv
 from flight.controller import Controller, RateDemand
-from flight.detector import GYRO_FAULT, STUCK_ON, Detection, Detector, Effectiveness
+from flight.detector import (
+    DEGRADED,
+    FAIL_TO_FIRE,
+    GYRO_FAULT,
+    STUCK_ON,
+    Detection,
+    Detector,
+    Effectiveness,
+    leak_or_deficit,
+)
 from flight.fdir import Fdir
 from flight.gyro_check import GyroCheck
 from flight.kalman import DisturbanceKalman
@@ -40,6 +49,11 @@ from flight.observer import AdaptiveObserver, ObserverOutput
 from flight.onboard_model import OnboardModel, Prediction
 
 _Y_ORBIT = np.array([0.0, 1.0, 0.0])  # local vertical in the orbit frame (seed 003 eq. 9)
+# Ticks of residuals and burns kept to tell a leak from its opposite thruster's deficit.
+_ISOLATION_TICKS = 10
+# A hypothesis replaces the detector's when its residual sum of squares is this many times
+# smaller. chosen: a factor that noise over 10 ticks does not reach by chance.
+_ISOLATION_RATIO = 2.0
 
 
 @dataclass(frozen=True)
@@ -123,6 +137,7 @@ class FlightSoftware:
         jump = dc.gyro_jump_rad_s if dc.gyro_jump_rad_s is not None else 10.0 * dc.dead_zone_rad_s
         self.gyro_check = GyroCheck(jump, math.sqrt(12.0) * vehicle.gyro.noise_std_rad_s)
         self._held: tuple | None = None
+        self._window: list[tuple[np.ndarray, np.ndarray]] = []
         self._w_prev: np.ndarray | None = None
         self.fdir = Fdir(fc.fdir, self.arrays.manifold_of, len(self.arrays.manifolds))
         self.kalman = (DisturbanceKalman(fc.kalman, self.h, self.detector.e_B)
@@ -246,6 +261,13 @@ class FlightSoftware:
         out = self.detector.step(tick, dw, pred.active, avail, pred.dw_thr_abs_rad_s, inside)
         if tick == self._tick:
             self._det_out = out
+        if not out.held and pred.eff_s is not None:
+            self._window.append((np.asarray(dw, dtype=float), np.asarray(pred.eff_s, float)))
+            del self._window[:-_ISOLATION_TICKS]
+            if out.detection is not None:
+                det = self._isolate_opposite(out.detection, avail)
+                self.detector.latched = det
+                return det
         if out.detection is None and not out.held and pred.eff_s is not None:
             self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat)
             if pred.deff_dlat is not None:
@@ -253,6 +275,46 @@ class FlightSoftware:
             if self.detector.quiet():
                 self.effectiveness.trust()
         return out.detection
+
+    def _isolate_opposite(self, det: Detection, avail: np.ndarray) -> Detection:
+        """A failed (or degraded) thruster and a stuck-on opposite one move both residuals
+        alike on the ticks the failed one fires; the ticks where neither fires tell them apart
+        (a leak still pushes). Over the last ticks, fit both hypotheses to the residual
+        (``flight.detector.leak_or_deficit``) and name the one that fits clearly better."""
+        if det.kind not in (STUCK_ON, FAIL_TO_FIRE, DEGRADED) or not self._window:
+            return det
+        d = self.detector
+        mu_abs = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1)
+        k = self.effectiveness.k
+        dw = np.array([w for w, _ in self._window])
+        eff = np.array([e for _, e in self._window])
+        closed = self.h - np.clip(eff, 0.0, self.h)
+        if det.kind == STUCK_ON:
+            j = det.thruster
+            rivals = [i for i in np.flatnonzero(d.opposite[j] & avail)
+                      if -d.rho_on[i] >= 0.5 * d.thresholds_on[i]]
+        else:
+            i0 = det.thruster
+            rivals = [j for j in np.flatnonzero(d.opposite[i0] & avail)
+                      if d.rho_off[j] >= 0.5 * d.thresholds_off[j]]
+        for r in rivals:
+            i, j = (int(r), det.thruster) if det.kind == STUCK_ON else (det.thruster, int(r))
+            ratio = leak_or_deficit(dw @ d.e_B[i], mu_abs[i] * k[i] * eff[:, i],
+                                    mu_abs[j] * closed[:, j])
+            if det.kind == STUCK_ON and ratio > _ISOLATION_RATIO:
+                frac = float(self.effectiveness.fraction[i])
+                kind = DEGRADED if frac >= d.cfg.fail_fraction else FAIL_TO_FIRE
+                who = i
+                rho = float(d.rho_on[i])
+            elif det.kind != STUCK_ON and ratio < 1.0 / _ISOLATION_RATIO:
+                kind, who, frac, rho = STUCK_ON, j, None, float(d.rho_off[j])
+            else:
+                continue
+            group = tuple(g for g in d.groups[who] if avail[g])
+            return Detection(tick=det.tick, thruster=who, kind=kind, group=group,
+                             names=tuple(self.arrays.names[g] for g in group), rho=rho,
+                             source=det.source, fraction=frac)
+        return det
 
     def _gyro_suspect(self) -> bool:
         return self._held is not None or self.gyro_check.suspect
@@ -346,6 +408,7 @@ class FlightSoftware:
         """After an FDIR reconfiguration: restart the residuals and the model's own state."""
         self.detector.rebaseline()
         self._held = None
+        self._window = []
         self.gyro_check.forget_pending()
         # The evidence restarts on the new configuration: effectiveness back to its last
         # trusted value (healthy thrusters fought the fault), and the observer's flex state,

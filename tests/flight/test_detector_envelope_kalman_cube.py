@@ -7,10 +7,11 @@ plant core, as tests/flight/test_fdir_envelope.py).
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from test_fdir_envelope import _run  # same folder (on sys.path under pytest)
 
-from flight.detector import STUCK_ON
+from flight.detector import STUCK_ON, leak_or_deficit
 from hil.config import AttitudeCfg, FaultSpec, InitialCfg, PlantOverridesCfg
 
 # A slew from 20 deg with a tumble: every channel fires for seconds, then a hold.
@@ -60,3 +61,30 @@ def test_a_leak_during_firings_on_other_channels_is_seen(fraction: float) -> Non
         dets_s, _, _ = _run("kalman_cube", [fault], 20.0, init=SLEW,
                             plant=PlantOverridesCfg(**EDGE), flight=sphere)
         assert not dets_s or dets_s[0][0] - 3.0 > 7.1
+
+
+def _ticks(seed: int):
+    """10 ticks of a pair of opposite thrusters i, j: i fires on some ticks (full or partial),
+    j on others, some ticks neither."""
+    rng = np.random.default_rng(seed)
+    h, mu = 0.2, 6.7e-3 / 0.2
+    eff_i = np.where(rng.random(10) < 0.5, rng.uniform(0.05, h, 10), 0.0)
+    eff_j = np.where((eff_i == 0.0) & (rng.random(10) < 0.4), rng.uniform(0.05, h, 10), 0.0)
+    return mu * eff_i, mu * (h - eff_j), rng
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_leak_or_deficit_names_the_hypothesis_the_data_came_from(seed: int) -> None:
+    burn_i, closed_j, rng = _ticks(seed)
+    noise = 1e-4 * rng.standard_normal(10)
+    leak = -0.5 * closed_j + noise       # j stuck on at 50 %
+    deficit = -0.5 * burn_i + noise      # i degraded to 50 %
+    assert leak_or_deficit(leak, burn_i, closed_j) < 0.5
+    assert leak_or_deficit(deficit, burn_i, closed_j) > 2.0
+
+
+def test_leak_or_deficit_abstains_when_the_ticks_cannot_tell() -> None:
+    """i commanded for the whole tick on every tick and j never: both regressors are the
+    same, so neither hypothesis is preferred."""
+    full = np.full(10, 6.7e-3)
+    assert leak_or_deficit(-0.5 * full, full, full) == 1.0
