@@ -54,6 +54,18 @@ _ISOLATION_TICKS = 10
 # A hypothesis replaces the detector's when its residual sum of squares is this many times
 # smaller. chosen: a factor that noise over 10 ticks does not reach by chance.
 _ISOLATION_RATIO = 2.0
+# When the ticks so far cannot tell the two apart (the controller alternating the pair fires
+# one of them on every tick), the pair is left out of the allocation for this many ticks (a
+# test of seed 003's "commanded test pulse" kind, in reverse: a stuck thruster still pushes,
+# a failed one gives nothing) and the hypotheses are fitted again. Two ticks: an integrating
+# gyro's mean over the second interval has no burn of either in it.
+_PROBE_TICKS = 2
+# The probe starts before a crossing when a failing thruster's and its opposite's stuck-on
+# evidence both pass this share of their thresholds within _SUSPECT_TIE of each other, so the
+# separating ticks are in by the time one crosses (no latency added); once per pair per
+# _ISOLATION_TICKS.
+_SUSPECT_SHARE = 0.6
+_SUSPECT_TIE = 0.2
 
 
 @dataclass(frozen=True)
@@ -138,6 +150,9 @@ class FlightSoftware:
         self.gyro_check = GyroCheck(jump, math.sqrt(12.0) * vehicle.gyro.noise_std_rad_s)
         self._held: tuple | None = None
         self._window: list[tuple[np.ndarray, np.ndarray]] = []
+        # (detection held back, the pair left out of the allocation, ticks left) while probing
+        self._probe: tuple[Detection | None, tuple[int, int], int] | None = None
+        self._probed: dict[tuple[int, int], int] = {}
         self._w_prev: np.ndarray | None = None
         self.fdir = Fdir(fc.fdir, self.arrays.manifold_of, len(self.arrays.manifolds))
         self.kalman = (DisturbanceKalman(fc.kalman, self.h, self.detector.e_B)
@@ -264,9 +279,23 @@ class FlightSoftware:
         if not out.held and pred.eff_s is not None:
             self._window.append((np.asarray(dw, dtype=float), np.asarray(pred.eff_s, float)))
             del self._window[:-_ISOLATION_TICKS]
+            if self._probe is not None:
+                held_det, pair, left = self._probe
+                if held_det is None:  # a probe before any crossing: the detector goes on
+                    self._probe = None if left <= 1 else (None, pair, left - 1)
+                elif left > 1:
+                    self._probe = (held_det, pair, left - 1)
+                    return None
+                else:
+                    self._probe = None
+                    det = self._isolate_opposite(held_det, avail, decide=True)
+                    self.detector.latched = det
+                    return det
+            elif out.detection is None and self.detector.latched is None:
+                self._suspect(tick, avail)
             if out.detection is not None:
                 det = self._isolate_opposite(out.detection, avail)
-                self.detector.latched = det
+                self.detector.latched = det if det is not None else out.detection
                 return det
         if out.detection is None and not out.held and pred.eff_s is not None:
             self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat)
@@ -276,11 +305,31 @@ class FlightSoftware:
                 self.effectiveness.trust()
         return out.detection
 
-    def _isolate_opposite(self, det: Detection, avail: np.ndarray) -> Detection:
+    def _suspect(self, tick: int, avail: np.ndarray) -> None:
+        """Start a probe when a thruster failing and its opposite stuck on are both building
+        up alike (module constants ``_SUSPECT_*``)."""
+        d = self.detector
+        fail = -d.rho_on / d.thresholds_on
+        stuck = d.rho_off / d.thresholds_off
+        for i in np.flatnonzero(avail & (fail >= _SUSPECT_SHARE)):
+            for j in np.flatnonzero(d.opposite[i] & avail & (stuck >= _SUSPECT_SHARE)):
+                a, b = float(fail[i]), float(stuck[j])
+                if abs(a - b) > _SUSPECT_TIE * max(a, b):
+                    continue
+                if tick - self._probed.get((int(i), int(j)), -10**9) < _ISOLATION_TICKS:
+                    continue
+                self._probed[(int(i), int(j))] = tick
+                self._probe = (None, (int(i), int(j)), _PROBE_TICKS)
+                return
+
+    def _isolate_opposite(self, det: Detection, avail: np.ndarray,
+                          decide: bool = False) -> Detection | None:
         """A failed (or degraded) thruster and a stuck-on opposite one move both residuals
         alike on the ticks the failed one fires; the ticks where neither fires tell them apart
         (a leak still pushes). Over the last ticks, fit both hypotheses to the residual
-        (``flight.detector.leak_or_deficit``) and name the one that fits clearly better."""
+        (``flight.detector.leak_or_deficit``) and name the one that fits clearly better. When
+        neither does, return None and probe (``_PROBE_TICKS``); after the probe (``decide``)
+        the better fit is named."""
         if det.kind not in (STUCK_ON, FAIL_TO_FIRE, DEGRADED) or not self._window:
             return det
         d = self.detector
@@ -301,12 +350,22 @@ class FlightSoftware:
             i, j = (int(r), det.thruster) if det.kind == STUCK_ON else (det.thruster, int(r))
             ratio = leak_or_deficit(dw @ d.e_B[i], mu_abs[i] * k[i] * eff[:, i],
                                     mu_abs[j] * closed[:, j])
-            if det.kind == STUCK_ON and ratio > _ISOLATION_RATIO:
+            need = 1.0 if decide else _ISOLATION_RATIO
+            if det.kind == STUCK_ON:
+                lead = (d.rho_off[j] / d.thresholds_off[j]) / (-d.rho_on[i] / d.thresholds_on[i])
+            else:
+                lead = (-d.rho_on[i] / d.thresholds_on[i]) / (d.rho_off[j] / d.thresholds_off[j])
+            if not decide and 1.0 / need <= ratio <= need and lead < 1.0 + _SUSPECT_TIE:
+                # Neither the fit nor the residuals' own lead (ticks that only one of the two
+                # hypotheses explains) tells them apart: probe.
+                self._probe = (det, (i, j), _PROBE_TICKS)
+                return None
+            if det.kind == STUCK_ON and ratio > need:
                 frac = float(self.effectiveness.fraction[i])
                 kind = DEGRADED if frac >= d.cfg.fail_fraction else FAIL_TO_FIRE
                 who = i
                 rho = float(d.rho_on[i])
-            elif det.kind != STUCK_ON and ratio < 1.0 / _ISOLATION_RATIO:
+            elif det.kind != STUCK_ON and ratio < 1.0 / need:
                 kind, who, frac, rho = STUCK_ON, j, None, float(d.rho_off[j])
             else:
                 continue
@@ -335,6 +394,9 @@ class FlightSoftware:
     def stage_allocator(self) -> None:
         """LP allocation over the available thrusters, quantisation, prediction."""
         av = self.fdir.available
+        if self._probe is not None:
+            av = av.copy()
+            av[list(self._probe[1])] = False
         if self.fdir.safe_mode or not av.any():
             self._alloc = None
             self._on_ms = np.zeros(self.n, dtype=int)
@@ -409,6 +471,7 @@ class FlightSoftware:
         self.detector.rebaseline()
         self._held = None
         self._window = []
+        self._probe = None
         self.gyro_check.forget_pending()
         # The evidence restarts on the new configuration: effectiveness back to its last
         # trusted value (healthy thrusters fought the fault), and the observer's flex state,
