@@ -18,7 +18,10 @@ unchanged.
 
 Send path. Every frame a ``Port`` sends passes ``Port.send_hook`` (when set) after encoding
 and E2E protection, just before the wire: the one place where bus faults (drop, delay,
-corrupt) attach.
+corrupt, babble, silence: ``bus.faults.SendFaults``) attach. A hook that holds frames back
+(delay) or adds its own (babble) also offers ``due(now_s)`` and ``next_due_s()``: the port
+sends what is due on every ``send`` and ``poll``, and a ``poll`` waits no longer than until
+the next one is due.
 """
 
 from __future__ import annotations
@@ -199,6 +202,7 @@ class Port:
         """
         frames = [fr for msg in msgs for fr in self.protect(msg)]
         if self.send_hook is not None:
+            self.release_due()
             frames = self.send_hook(frames)
         if self._raw is not None and len(frames) > 1:
             sent = self._raw.send_frames(frames)
@@ -221,6 +225,18 @@ class Port:
         frames = [fr] if self.send_hook is None else self.send_hook([fr])
         sent = [self._put(f) for f in frames]
         return bool(sent) and all(sent)
+
+    def release_due(self) -> int:
+        """Send what the send hook held back and is now due (delayed or babbled frames)."""
+        due = getattr(self.send_hook, "due", None)
+        if due is None:
+            return 0
+        return sum(self._put(fr) for fr in due(self.now_s()))
+
+    def _hook_wait_s(self, timeout_s: float) -> float:
+        nxt = getattr(self.send_hook, "next_due_s", None)
+        t = None if nxt is None else nxt()
+        return timeout_s if t is None else max(0.0, min(timeout_s, t - self.now_s()))
 
     def _put(self, fr: Frame) -> bool:
         """One frame on the wire, counted in ``tx_frames`` or ``tx_errors``."""
@@ -246,8 +262,12 @@ class Port:
         return ok
 
     def poll(self, timeout_s: float = 0.0) -> list[tuple[Message, float]]:
-        """Wait up to ``timeout_s`` for the first frame, then drain what is queued."""
+        """Wait up to ``timeout_s`` for the first frame, then drain what is queued (the wait
+        ends early when the send hook has frames due, which then go out)."""
         got: list[tuple[Frame, can.Message | None]] = []
+        if self.send_hook is not None:
+            self.release_due()
+            timeout_s = self._hook_wait_s(timeout_s)
         try:
             if self._raw is not None:
                 self._raw.drain_frames(timeout_s, got, with_messages=self.logger is not None)
@@ -265,6 +285,8 @@ class Port:
             if v.message is not None:
                 out.append((v.message, v.rx_time_s))
         self.receiver.expire(now)
+        if self.send_hook is not None:
+            self.release_due()
         return out
 
     def _drain_python_can(self, timeout_s: float,
@@ -284,6 +306,9 @@ class Port:
 
     def counts(self) -> dict[str, int]:
         out = {**self.receiver.counts(), "tx_frames": self.tx_frames, "tx_errors": self.tx_errors}
+        injected = getattr(self.send_hook, "counts", None)
+        if injected is not None:  # bus faults this node's send path injected (bus.faults)
+            out.update({f"injected_{k}": v for k, v in injected.items()})
         drops = getattr(self.bus, "kernel_drops", None)
         if drops is not None:  # SocketCAN: frames the kernel dropped, receive queue full
             out["kernel_drops"] = drops
