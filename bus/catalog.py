@@ -79,6 +79,7 @@ class FaultKind(IntEnum):
     BUS_DELAY = 9
     BUS_CORRUPT = 10
     NODE_SILENT = 11
+    BUS_BABBLE = 12
 
 
 class FaultAction(IntEnum):
@@ -126,6 +127,9 @@ class GyroStatus(IntEnum):
     VALID = 0x01
     SATURATED = 0x02
     FROZEN = 0x04  # plant-side test flag; the flight must not rely on it
+    # The plant did not apply the flight's last command (missing, late, refused, or the plant
+    # is safe): the rate change up to this sample is no evidence about the thrusters.
+    CMD_NOT_APPLIED = 0x08
 
 
 def _enum_choices(enum: type[IntEnum]) -> dict[int, str]:
@@ -387,8 +391,9 @@ CATALOG = Catalog(
                     "status",
                     50,
                     8,
-                    maximum=7,
-                    comment="bit 0 valid, bit 1 saturated, bit 2 frozen (test flag)",
+                    maximum=15,
+                    comment="bit 0 valid, bit 1 saturated, bit 2 frozen (test flag), "
+                            "bit 3 last command not applied",
                 ),
             ),
             cycle_s=GYRO_PERIOD_S,
@@ -427,11 +432,11 @@ CATALOG = Catalog(
             0x180,
             0x1180,
             Node.PANEL,
-            (Node.PLANT,),
+            (Node.PLANT, Node.FLIGHT),
             (
                 _sig("request_id", 12, 8),
                 _sig("action", 20, 2, minimum=1, maximum=2, choices=_enum_choices(FaultAction)),
-                _sig("kind", 22, 4, maximum=11, choices=_enum_choices(FaultKind),
+                _sig("kind", 22, 4, maximum=12, choices=_enum_choices(FaultKind),
                      comment="none (0) with a clear; the plant rejects an inject of none"),
                 _sig(
                     "thruster",
@@ -445,8 +450,12 @@ CATALOG = Catalog(
                     14,
                     scale=1e-4,
                     maximum=1.0,
-                    comment="residual or degraded thrust fraction, or fault magnitude 0..1",
+                    comment="residual or degraded thrust fraction, or fault magnitude 0..1; "
+                            "bus faults: probability (bus_delay: delay in s, bus_babble: "
+                            "rate / 20000 Hz)",
                 ),
+                _sig("message", 46, 6, comment="bus faults: 0 every frame, k the k-th name "
+                                               "of bus.faults.MESSAGE_NAMES"),
             ),
             cycle_s=None,
             deadline_s=1.0,
@@ -460,7 +469,7 @@ CATALOG = Catalog(
             0x181,
             0x1181,
             Node.PANEL,
-            (Node.PLANT,),
+            (Node.PLANT, Node.FLIGHT),
             (
                 _sig("request_id", 12, 8),
                 _sig("start_time", 20, 22, scale=0.01, unit="s", comment="sim time to start"),
@@ -490,7 +499,7 @@ CATALOG = Catalog(
                 _sig("request_id", 12, 8),
                 _sig("status", 20, 2, minimum=1, maximum=2, choices=_enum_choices(AckStatus)),
                 _sig("reason", 22, 8, maximum=6, choices=_enum_choices(AckReason)),
-                _sig("kind", 30, 4, maximum=11, choices=_enum_choices(FaultKind)),
+                _sig("kind", 30, 4, maximum=12, choices=_enum_choices(FaultKind)),
             ),
             cycle_s=None,
             deadline_s=1.0,

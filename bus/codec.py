@@ -335,6 +335,7 @@ class FaultCmd:
     fraction: float = 1.0
     start_time_s: float = 0.0
     clear_time_s: float | None = None
+    message: int = 0  # bus faults: 0 every frame, k the k-th of bus.faults.MESSAGE_NAMES
 
     def to_signals(self) -> Signals:
         return {
@@ -344,6 +345,7 @@ class FaultCmd:
                 "kind": int(self.kind),
                 "thruster": _thr(self.thruster),
                 "fraction": self.fraction,
+                "message": self.message,
             },
             "FAULT_CMD_1": {
                 "request_id": self.request_id,
@@ -363,6 +365,7 @@ class FaultCmd:
             a["fraction"],
             b["start_time"],
             None if b["clear_time"] == 0 else b["clear_time"],
+            int(a["message"]),
         )
 
 

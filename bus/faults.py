@@ -50,6 +50,8 @@ KINDS = ("bus_drop", "bus_delay", "bus_corrupt", "bus_babble", "node_silent")
 COUNTS = ("dropped", "delayed", "corrupted", "babbled", "silenced")
 _COUNT_OF = dict(zip(KINDS, COUNTS, strict=True))
 NODE_IDS = {"plant": 1, "flight": 2, "panel": 3}
+# The messages a fault may be limited to (FAULT_CMD.message k names the k-th; 0 is "all").
+MESSAGE_NAMES = tuple(sorted({f.set_name or f.name for f in CATALOG.frames}))
 BABBLE_MAX_PER_CALL = 2000  # frames one release may flood (a long gap does not become a burst)
 
 

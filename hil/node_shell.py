@@ -9,6 +9,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from bus.catalog import CATALOG, Catalog
+from bus.faults import KINDS as BUS_FAULT_KINDS
+from bus.faults import SendFaults
 from bus.receiver import Receiver
 from bus.transport import BusConfig, BusLogger, Port, open_bus
 from hil.config import Scenario, resolve_vehicle_path
@@ -69,6 +71,29 @@ def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
     logger = BusLogger(out / f"{name}.bus.log", channel=s.channel) if s.bus_log else None
     receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
     return Port(open_bus(cfg), receiver=receiver, logger=logger)
+
+
+def attach_bus_faults(port: Port, sc: Scenario, node: str) -> SendFaults:
+    """The node's send-path bus faults (``bus.faults``), seeded from the scenario's seed, with
+    the scenario's bus faults of this node; set as the port's send hook (the panel adds and
+    clears faults on it live)."""
+    faults = SendFaults(sc.cfg.seed, node, clock=port.now_s)
+    for f in sc.cfg.faults:
+        if f.kind in BUS_FAULT_KINDS and f.node == node:
+            faults.add(f)
+    port.send_hook = faults
+    return faults
+
+
+def bus_fault_fields(shell, t_s: float) -> list[dict]:
+    """This tick's newly active bus faults of the shell's node (``faults_injected``
+    entries); their events go to the shell's events."""
+    bf: SendFaults = shell.bus_faults
+    bf.t_s = t_s
+    new = bf.newly_active()
+    shell.events.extend(bf.events)
+    bf.events.clear()
+    return new
 
 
 def say(name: str, text: str) -> None:

@@ -30,6 +30,8 @@ class FaultEvent(TypedDict):
     type: str
     fraction: float
     clear_t_s: float | None
+    node: NotRequired[str]  # bus faults: the node whose send path has it
+    message: NotRequired[str | None]  # bus faults: the message it is limited to (None: all)
 
 
 class DetectionRecord(TypedDict):
@@ -93,6 +95,10 @@ class FlightRecord(TypedDict):
     safe: NotRequired[bool]
     thr_cmd_on_ms: NotRequired[int]
     bus: NotRequired[dict[str, int]]
+    # ticks so far the detector took no evidence from (no fresh gyro sample, or the plant
+    # did not apply the last command); bus faults of the flight's send path that started
+    no_evidence_ticks: NotRequired[int]
+    faults_injected: NotRequired[list[FaultEvent]]
 
 
 def truth_fields(truth, err_q: np.ndarray) -> TruthFields:
