@@ -1,0 +1,109 @@
+"""The loop under bus faults: both process shells, in this process, over python-can's
+``virtual`` bus (the plant in the test's thread, the flight in another), lockstep.
+
+* ``bus_drop`` p = 0.3 on the plant's GYRO: the flight propagates the ticks without a
+  sample, keeps them out of the detector's evidence, and raises no detection;
+* ``node_silent`` of the flight for 2 s: the plant goes safe, and leaves its safe state when
+  the flight is back (docs/hostile-bus.md);
+* the faults appear in the summary (``faults``, ``bus_faults``), counted on both sides.
+"""
+
+from __future__ import annotations
+
+import threading
+import uuid
+from pathlib import Path
+
+from hil.config import load_scenario
+from hil.flight_shell import FlightShell
+from hil.node_settings import parse_settings
+from hil.node_shell import open_port
+from hil.plant_shell import PlantShell
+from hil.recorder import read_jsonl
+from hil.summary import summarise
+
+BASE = ("name: hostile\nvehicle: generic\nduration_s: {d}\nseed: 0\n"
+        "initial: {{attitude: {{axis: [1.0, 0.0, 0.0], angle_deg: 22.5}}}}\n")
+
+
+def run_pair(tmp_path: Path, body: str, duration_s: float = 30.0,
+             reply_timeout_s: float = 0.3) -> tuple[list, list, dict]:
+    scen = tmp_path / "s.yaml"
+    scen.write_text(BASE.format(d=duration_s) + body)
+    sc = load_scenario(scen)
+    channel = f"hb-{uuid.uuid4().hex[:12]}"
+    out = tmp_path / "run"
+
+    def settings(node):
+        return parse_settings([node, "--scenario", str(scen), "--out", str(out), "--mode",
+                               "lockstep", "--interface", "virtual", "--channel", channel,
+                               "--reply-timeout", str(reply_timeout_s)])
+
+    out.mkdir()
+    fs = settings("flight")
+    flight = FlightShell(sc, open_port(fs, out, "flight"), out, fs)
+    ps = settings("plant")
+    plant = PlantShell(sc, open_port(ps, out, "plant"), out, ps)
+    done = threading.Event()
+    th = threading.Thread(target=flight.run_lockstep, args=(done.is_set,), daemon=True)
+    th.start()
+    try:
+        plant.run_lockstep(lambda: False)
+    finally:
+        done.set()
+        th.join(10)
+        plant.port.close()
+        flight.port.close()
+    precs, frecs = list(read_jsonl(out / "plant.jsonl")), list(read_jsonl(out / "flight.jsonl"))
+    summary = summarise(scenario="hostile", vehicle="generic", mode="lockstep",
+                        plant_records=precs, flight_records=frecs, expect=sc.cfg.expect)
+    return precs, frecs, summary
+
+
+def test_gyro_drop_30_percent_raises_no_thruster_detection(tmp_path):
+    precs, frecs, s = run_pair(
+        tmp_path, "faults:\n  - {kind: bus_drop, node: plant, message: GYRO, probability: 0.3,"
+                  " t_s: 2.0}\n")
+    assert s["detections"] == [] and s["false_alarms"] == []
+    assert [(f["type"], f["node"], f["message"]) for f in s["faults"]] == \
+        [("bus_drop", "plant", "GYRO")]
+    bf = s["bus_faults"]["plant"]
+    # 28 s x 1 sample per tick x 2 frames at p = 0.3: about 84 frames.
+    assert 40 < bf["injected"]["dropped"] < 130
+    assert bf["seen_by_peer"]["counter_jump"] > 0
+    no_ev = frecs[-1]["no_evidence_ticks"]
+    assert 20 < no_ev < 100  # P(both frames pass) = 0.49: about 70 of 140 ticks
+    assert any("bus fault active on plant: bus_drop GYRO p=0.3" in e
+               for r in precs for e in r.get("events", []))
+    # The loop still holds the craft: it reaches the target from 22.5 deg.
+    assert precs[-2]["att_err_deg"] < 2.0
+
+
+def test_flight_silent_for_2_s_makes_the_plant_safe_and_it_recovers(tmp_path):
+    precs, frecs, s = run_pair(
+        tmp_path, "faults:\n  - {kind: node_silent, node: flight, t_s: 4.0, clear_t_s: 6.0}\n",
+        duration_s=12.0)
+    safe = [r["t_s"] for r in precs if r.get("safe")]
+    assert safe, "the plant never went safe"
+    # Three missed ticks from 4.0 s make it safe; three good ticks after 6.0 s release it.
+    assert 4.4 <= safe[0] <= 5.0 and 6.0 <= safe[-1] <= 7.2
+    assert not precs[-2]["safe"]
+    events = [e for r in precs for e in r.get("events", [])]
+    assert any(e.startswith("safe: all valves and manifolds closed") for e in events)
+    assert any("leaving safe state" in e for e in events)
+    assert s["detections"] == []  # the unapplied commands were no evidence
+    assert s["bus_faults"]["flight"]["injected"]["silenced"] >= 10 * 7  # 10 ticks x 7 frames
+    # The plant said so in its samples: the flight kept those ticks out of its evidence.
+    assert frecs[-1]["no_evidence_ticks"] >= 10
+
+
+def test_thr_cmd_missing_hold_repeats_the_last_command(tmp_path):
+    precs, _, _ = run_pair(
+        tmp_path, "safety: {thr_cmd_missing: hold, thr_cmd_lost_ticks: 5}\n"
+                  "faults:\n  - {kind: bus_drop, node: flight, message: THR_CMD, "
+                  "pattern: [1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0], t_s: 1.0}\n",
+        duration_s=4.0)
+    events = [e for r in precs for e in r.get("events", [])]
+    held = [e for e in events if "holding the command of tick" in e]
+    assert held and "(1 in a row)" in held[0]
+    assert not any(e.startswith("safe:") for e in events)
