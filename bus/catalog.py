@@ -536,6 +536,13 @@ SYNC_ID = CATALOG.frame("SYNC").frame_id
 THR_CMD_IDS = tuple(f.frame_id for f in CATALOG.set_frames("THR_CMD"))
 GYRO_IDS = tuple(f.frame_id for f in CATALOG.set_frames("GYRO"))
 FDIR_STATUS_ID = CATALOG.frame("FDIR_STATUS").frame_id
+def consumed_ids(node: Node, catalog: Catalog | None = None) -> tuple[int, ...]:
+    """Identifiers of the frames ``node`` receives (the catalog's ``receivers``), sorted: what
+    its kernel-side receive filter lets through (``bus.transport.node_filters``)."""
+    cat = catalog or CATALOG
+    return tuple(sorted(f.frame_id for f in cat.frames if node in f.receivers))
+
+
 FAULT_CMD_IDS = tuple(f.frame_id for f in CATALOG.set_frames("FAULT_CMD"))
 FAULT_ACK_ID = CATALOG.frame("FAULT_ACK").frame_id
 FLIGHT_TIMING_ID = CATALOG.frame("FLIGHT_TIMING").frame_id

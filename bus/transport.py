@@ -35,7 +35,7 @@ from typing import Any, Protocol, runtime_checkable
 import can
 from pydantic import BaseModel, ConfigDict, Field
 
-from bus.catalog import BITRATE_BPS
+from bus.catalog import BITRATE_BPS, Node, consumed_ids
 from bus.codec import Frame, Message, encode
 from bus.e2e import Protector
 from bus.errors import BusError
@@ -71,10 +71,18 @@ class FrameBus(Protocol):
 
     def send_frames(self, frames: list[Frame]) -> int: ...
 
-    def drain_frames(self, timeout_s: float, got: list, with_messages: bool = False) -> None: ...
+    def drain_frames(self, timeout_s: float, got: list, with_messages: bool = False,
+                     limit: int | None = None) -> None: ...
 
 
 SendHook = Callable[[list[Frame]], list[Frame]]
+
+
+def node_filters(node: Node) -> list[dict[str, Any]]:
+    """python-can ``can_filters`` letting through only the identifiers ``node`` consumes (from
+    the catalog). SocketCAN applies them in the kernel (``CAN_RAW_FILTER``): a frame of
+    another identifier never wakes the process; other interfaces filter in python-can."""
+    return [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in consumed_ids(node)]
 
 
 def open_bus(cfg: BusConfig | None = None) -> can.BusABC:
@@ -154,7 +162,7 @@ class Port:
 
     def __init__(
         self, bus: can.BusABC, receiver: Receiver | None = None, logger: BusLogger | None = None,
-        send_hook: SendHook | None = None,
+        send_hook: SendHook | None = None, max_frames_per_poll: int | None = None,
     ):
         self.bus = bus
         self.receiver = receiver or Receiver()
@@ -175,6 +183,11 @@ class Port:
             collections.deque(maxlen=4096) if _echoes_own_frames(bus) else None
         )
         self.echoes_dropped = 0
+        # Bounded work per poll: at most this many frames are taken from the socket per
+        # ``poll``; the rest wait in the kernel's queue for the next one (what overflows that
+        # queue the kernel drops and counts, ``kernel_drops``). None: no bound.
+        self.max_frames_per_poll = max_frames_per_poll
+        self.polls_capped = 0
 
     @staticmethod
     def now_s() -> float:
@@ -269,10 +282,14 @@ class Port:
             self.release_due()
             timeout_s = self._hook_wait_s(timeout_s)
         try:
+            cap = self.max_frames_per_poll
             if self._raw is not None:
-                self._raw.drain_frames(timeout_s, got, with_messages=self.logger is not None)
+                self._raw.drain_frames(timeout_s, got, with_messages=self.logger is not None,
+                                       limit=cap)
             else:
-                self._drain_python_can(timeout_s, got)
+                self._drain_python_can(timeout_s, got, cap)
+            if cap is not None and len(got) >= cap:
+                self.polls_capped += 1
         except (can.CanError, OSError) as exc:
             self.receiver.counters["internal"] += 1
             self.receiver.events.append(Verdict("internal", detail=f"bus: recv failed: {exc}"))
@@ -290,10 +307,11 @@ class Port:
         return out
 
     def _drain_python_can(self, timeout_s: float,
-                          got: list[tuple[Frame, can.Message | None]]) -> None:
+                          got: list[tuple[Frame, can.Message | None]],
+                          cap: int | None = None) -> None:
         timeout: float | None = timeout_s
         echo = self._echo
-        while True:
+        while cap is None or len(got) < cap:
             m = self.bus.recv(timeout)
             if m is None:
                 return
@@ -312,6 +330,8 @@ class Port:
         drops = getattr(self.bus, "kernel_drops", None)
         if drops is not None:  # SocketCAN: frames the kernel dropped, receive queue full
             out["kernel_drops"] = drops
+        if self.max_frames_per_poll is not None:
+            out["polls_capped"] = self.polls_capped
         return out
 
     def close(self) -> None:

@@ -8,16 +8,19 @@ import signal
 from dataclasses import replace
 from pathlib import Path
 
-from bus.catalog import CATALOG, Catalog
+from bus.catalog import CATALOG, Catalog, Node
 from bus.faults import KINDS as BUS_FAULT_KINDS
 from bus.faults import SendFaults
 from bus.receiver import Receiver
-from bus.transport import BusConfig, BusLogger, Port, open_bus
+from bus.transport import BusConfig, BusLogger, Port, node_filters, open_bus
 from hil.config import Scenario, resolve_vehicle_path
 from hil.node_settings import NodeSettings
 from hil.process_policy import idle_gc
 
 XYZ = ("x", "y", "z")
+# Frames one poll takes from the socket at most (bus.transport.Port): a flood waits in the
+# kernel's queue instead of holding a tick; nominal traffic is a few frames per poll.
+MAX_FRAMES_PER_POLL = 32
 
 
 def round6(x: float | None) -> float | None:
@@ -65,12 +68,16 @@ def lockstep_receiver(reply_timeout_s: float) -> Receiver:
 
 def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
     """The node's CAN port (lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log``
-    when ``settings.bus_log``)."""
+    when ``settings.bus_log``): receive filters from the catalog (only the identifiers the
+    node consumes; in the kernel on SocketCAN) and at most ``MAX_FRAMES_PER_POLL`` frames
+    per poll."""
     s = settings
-    cfg = BusConfig(interface=s.interface, channel=s.channel)
+    cfg = BusConfig(interface=s.interface, channel=s.channel,
+                    kwargs={"can_filters": node_filters(Node[name.upper()])})
     logger = BusLogger(out / f"{name}.bus.log", channel=s.channel) if s.bus_log else None
     receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
-    return Port(open_bus(cfg), receiver=receiver, logger=logger)
+    return Port(open_bus(cfg), receiver=receiver, logger=logger,
+                max_frames_per_poll=MAX_FRAMES_PER_POLL)
 
 
 def attach_bus_faults(port: Port, sc: Scenario, node: str) -> SendFaults:

@@ -107,3 +107,69 @@ def test_thr_cmd_missing_hold_repeats_the_last_command(tmp_path):
     held = [e for e in events if "holding the command of tick" in e]
     assert held and "(1 in a row)" in held[0]
     assert not any(e.startswith("safe:") for e in events)
+
+
+def _shells(tmp_path: Path):
+    scen = tmp_path / "s.yaml"
+    scen.write_text(BASE.format(d=5.0))
+    sc = load_scenario(scen)
+    out = tmp_path / "run"
+    out.mkdir()
+    channel = f"hb-{uuid.uuid4().hex[:12]}"
+    shells = []
+    for node, cls in (("plant", PlantShell), ("flight", FlightShell)):
+        s = parse_settings([node, "--scenario", str(scen), "--out", str(out), "--interface",
+                            "virtual", "--channel", channel])
+        shells.append(cls(sc, open_port(s, out, node), out, s))
+    return shells
+
+
+def test_panel_bus_faults_go_to_the_node_named_and_clear(tmp_path):
+    from bus.catalog import AckStatus
+    from hil.binding import fault_spec
+    from hil.panel import build_bus_command
+
+    plant, flight = _shells(tmp_path)
+    try:
+        inj = build_bus_command("inject", "bus_drop", "flight", 0.3, None, None, "THR_CMD",
+                                None, None, 7)
+        spec = fault_spec(inj, plant.names, 0.0, node="flight")
+        assert (spec.kind, spec.node, spec.probability, spec.message) == \
+            ("bus_drop", "flight", 0.3, "THR_CMD")
+        plant.on_fault_cmd(inj)
+        flight.on_fault_cmd(inj)
+        flight.on_fault_cmd(inj)  # the panel's resend: not applied twice
+        assert plant.bus_faults.faults == []
+        assert [(f.spec.kind, f.spec.message) for f in flight.bus_faults.faults] == \
+            [("bus_drop", "THR_CMD")]
+        delay = build_bus_command("inject", "bus_delay", "plant", None, 80.0, None, "GYRO",
+                                  1.0, 3.0, 8)
+        plant.on_fault_cmd(delay)
+        (f,) = plant.bus_faults.faults
+        assert (f.spec.delay_ms, f.t_on_s, f.t_off_s, f.spec.message) == \
+            (80.0, 1.0, 3.0, "GYRO")
+        plant.on_fault_cmd(build_bus_command("clear", "bus_delay", "plant", None, None, None,
+                                             None, None, None, 9))
+        assert f.t_off_s == f.t_on_s and not f.active(1.5)  # cleared before it began
+        flight.on_fault_cmd(build_bus_command("clear", "bus_drop", "flight", None, None, None,
+                                              None, None, None, 10))
+        assert flight.bus_faults.faults[0].t_off_s == 0.0
+        assert plant.last_fault[2].status == AckStatus.ACCEPTED
+    finally:
+        plant.port.close()
+        flight.port.close()
+
+
+def test_panel_bus_command_errors_are_one_line():
+    import pytest
+
+    from hil.errors import FaultCommandError
+    from hil.panel import build_bus_command
+
+    with pytest.raises(FaultCommandError, match=r"^fault: --node: expected 'plant' or "
+                                                r"'flight' for bus_drop, got None$"):
+        build_bus_command("inject", "bus_drop", None, 0.3, None, None, None, None, None, 1)
+    with pytest.raises(FaultCommandError, match=r"^fault: --message: expected one of \["):
+        build_bus_command("inject", "bus_drop", "plant", 0.3, None, None, "NOPE", None, None, 1)
+    with pytest.raises(FaultCommandError, match=r"^fault: --delay-ms: expected a delay"):
+        build_bus_command("inject", "bus_delay", "plant", None, None, None, None, None, None, 1)
