@@ -265,6 +265,23 @@ _tick_lo = dict(unit="tick", comment="tick number modulo 256 (set key)")
 _all = (Node.PLANT, Node.FLIGHT, Node.PANEL)
 
 
+def _mac_frame(name: str, frame_id: int, sender: Node, receivers: tuple[Node, ...],
+               cycle_s: float | None, deadline_s: float, of: str) -> FrameDef:
+    """The authenticator of a secured message (``bus.secoc``, AUTOSAR SecOC's secured PDU
+    trailer sent as a frame of its own): the message's key (low 8 bits), the freshness value
+    (low 16 bits) and a 24-bit truncated HMAC-SHA256."""
+    return FrameDef(
+        name, frame_id, 0x1000 + frame_id, sender, receivers,
+        (
+            _sig("key_lo", 12, 8, comment=f"low 8 bits of the {of} key (tick / request id)"),
+            _sig("fresh_lo", 20, 16, comment="freshness value, low 16 bits"),
+            _sig("mac", 36, 24, comment="HMAC-SHA256 truncated to 24 bits"),
+        ),
+        cycle_s=cycle_s, deadline_s=deadline_s,
+        comment=f"SecOC authenticator of {of} (bus.secoc)",
+    )
+
+
 def _thr_frame(k: int) -> FrameDef:
     sigs = [_sig("tick_lo", 12, 8, **_tick_lo)]
     for j in range(THRUSTERS_PER_FRAME):
@@ -360,6 +377,7 @@ CATALOG = Catalog(
             comment="thruster command header; frame 0 of the THR_CMD set (applied atomically)",
         ),
         *(_thr_frame(k) for k in range(N_THRUSTERS_MAX // THRUSTERS_PER_FRAME)),
+        _mac_frame("THR_CMD_MAC", 0x0A8, Node.FLIGHT, (Node.PLANT,), TICK_S, 0.1, "THR_CMD"),
         FrameDef(
             "GYRO_1",
             0x110,
@@ -489,6 +507,8 @@ CATALOG = Catalog(
             key_signal="request_id",
             comment="fault timing; frame 1 of the FAULT_CMD set",
         ),
+        _mac_frame("FAULT_CMD_MAC", 0x182, Node.PANEL, (Node.PLANT, Node.FLIGHT), None, 1.0,
+                   "FAULT_CMD"),
         FrameDef(
             "FAULT_ACK",
             0x1C0,

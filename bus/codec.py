@@ -455,9 +455,37 @@ class Heartbeat:
         )
 
 
-Message = Sync | Gyro | ThrCmd | FdirStatus | FaultCmd | FaultAck | FlightTiming | Heartbeat
+@dataclass(frozen=True)
+class ThrCmdMac:
+    """THR_CMD_MAC: the authenticator of THR_CMD (``bus.secoc``): key low 8 bits, freshness
+    low 16 bits, 24-bit truncated MAC."""
+
+    SET: ClassVar[str] = "THR_CMD_MAC"
+    key_lo: int
+    fresh_lo: int
+    mac: int
+
+    def to_signals(self) -> Signals:
+        return {self.SET: {"key_lo": self.key_lo, "fresh_lo": self.fresh_lo, "mac": self.mac}}
+
+    @classmethod
+    def from_signals(cls, sig: Signals):
+        s = sig[cls.SET]
+        return cls(int(s["key_lo"]), int(s["fresh_lo"]), int(s["mac"]))
+
+
+@dataclass(frozen=True)
+class FaultCmdMac(ThrCmdMac):
+    """FAULT_CMD_MAC: the authenticator of FAULT_CMD (fields as ``ThrCmdMac``)."""
+
+    SET: ClassVar[str] = "FAULT_CMD_MAC"
+
+
+Message = (Sync | Gyro | ThrCmd | FdirStatus | FaultCmd | FaultAck | FlightTiming | Heartbeat
+           | ThrCmdMac | FaultCmdMac)
 MESSAGE_TYPES: dict[str, type] = {
-    c.SET: c for c in (Sync, Gyro, ThrCmd, FdirStatus, FaultCmd, FaultAck, FlightTiming, Heartbeat)
+    c.SET: c for c in (Sync, Gyro, ThrCmd, FdirStatus, FaultCmd, FaultAck, FlightTiming, Heartbeat,
+                       ThrCmdMac, FaultCmdMac)
 }
 
 

@@ -188,6 +188,9 @@ class Port:
         # queue the kernel drops and counts, ``kernel_drops``). None: no bound.
         self.max_frames_per_poll = max_frames_per_poll
         self.polls_capped = 0
+        # SecOC (bus.secoc.Authenticator): signs THR_CMD and FAULT_CMD on send, and hands on
+        # received ones only once authenticated. None: no authentication.
+        self.auth = None
 
     @staticmethod
     def now_s() -> float:
@@ -213,6 +216,10 @@ class Port:
         EncodeError for illegal values (before anything is sent). A transmit failure (buffer
         full, interface down) is counted in ``tx_errors``, not raised: the peer sees a gap.
         """
+        if self.auth is not None:
+            now = self.now_s()
+            msgs = tuple(m for msg in msgs
+                         for m in (msg, self.auth.sign(msg, now)) if m is not None)
         frames = [fr for msg in msgs for fr in self.protect(msg)]
         if self.send_hook is not None:
             self.release_due()
@@ -302,6 +309,8 @@ class Port:
             if v.message is not None:
                 out.append((v.message, v.rx_time_s))
         self.receiver.expire(now)
+        if self.auth is not None:
+            out = self.auth.accept(out, now)
         if self.send_hook is not None:
             self.release_due()
         return out
@@ -332,6 +341,8 @@ class Port:
             out["kernel_drops"] = drops
         if self.max_frames_per_poll is not None:
             out["polls_capped"] = self.polls_capped
+        if self.auth is not None:
+            out.update(self.auth.counts)
         return out
 
     def close(self) -> None:

@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "hil.thresholds_cmd",
     "hil.run",
     "hil.panel",
+    "hil.flood",
     "hil.runall",
     "hil.report",
     "hil.bench",

@@ -41,6 +41,7 @@ class NodeSettings:
     sched: Literal["auto", "other", "batch"] = "auto"
     bus_log: bool = False
     start_after: str | None = None
+    key_file: str | None = None
     sched_note: str | None = None
     rt_event: str | None = None
 
@@ -112,6 +113,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scheduler policy without --rt-priority (auto: plant SCHED_BATCH, "
                         "flight SCHED_OTHER, see hil.process_policy.set_policy)")
     p.add_argument("--bus-log", action="store_true", help="write NODE.bus.log (candump format)")
+    p.add_argument("--key-file", metavar="FILE",
+                   help="SecOC key (mode 0600, made by hil run / hil up): THR_CMD and "
+                        "FAULT_CMD are signed and checked (docs/hostile-bus.md); without "
+                        "it they are not")
     p.add_argument("--start-after", metavar="FILE",
                    help="set up, then wait until FILE exists before the first tick (hil run "
                         "starts both processes at once and gives the plant the flight's "

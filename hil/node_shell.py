@@ -76,8 +76,14 @@ def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
                     kwargs={"can_filters": node_filters(Node[name.upper()])})
     logger = BusLogger(out / f"{name}.bus.log", channel=s.channel) if s.bus_log else None
     receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
-    return Port(open_bus(cfg), receiver=receiver, logger=logger,
+    port = Port(open_bus(cfg), receiver=receiver, logger=logger,
                 max_frames_per_poll=MAX_FRAMES_PER_POLL)
+    if s.key_file is not None:
+        from bus.secoc import Authenticator
+        from hil.secoc_key import read_key
+
+        port.auth = Authenticator(read_key(s.key_file))
+    return port
 
 
 def attach_bus_faults(port: Port, sc: Scenario, node: str) -> SendFaults:
@@ -133,6 +139,10 @@ def write_record(shell, rec: dict) -> None:
     if shell.first:
         rec.update(shell.first)
         shell.first = {}
+    auth = getattr(shell.port, "auth", None)
+    if auth is not None and auth.events:  # authentication failures (bus.secoc)
+        rec["events"] = [*rec.get("events", []), *auth.events]
+        auth.events.clear()
     shell.rec.write(rec)
     shell.events = []
     idle_gc(rec["tick"])

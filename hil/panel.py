@@ -32,6 +32,7 @@ from hil.binding import FAULT_KIND_TO_BUS, PANEL_BABBLE_FULL_HZ, fault_cmd_injec
 from hil.config import MAX_DURATION_S, THRUSTER_FAULTS, VehicleCfg, load_vehicle
 from hil.errors import BusError, FaultCommandError, UsageError
 from hil.recorder import read_jsonl
+from hil.secoc_key import KEY_FILE, read_key
 from hil.summary import apply_clear
 
 BUS_TYPES = ("bus_drop", "bus_delay", "bus_corrupt", "bus_babble", "node_silent")
@@ -112,7 +113,8 @@ def build_command(vehicle: str | VehicleCfg, action: str, thruster: str | None,
 RESEND_S = 0.25  # no FAULT_ACK after this long: send the request again (see send_and_wait)
 
 
-def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float) -> FaultAck:
+def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float,
+                  key: bytes | None = None) -> FaultAck:
     """Send ``cmd`` and return the plant's FAULT_ACK; BusError when none comes in time.
 
     Every panel run is a new process whose E2E alive counters start at 0, so the plant's
@@ -127,6 +129,10 @@ def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float)
 
     port = Port(open_bus(BusConfig(interface=interface, channel=channel,
                                    kwargs={"can_filters": node_filters(Node.PANEL)})))
+    if key is not None:  # the running system checks FAULT_CMD's authenticator (bus.secoc)
+        from bus.secoc import Authenticator
+
+        port.auth = Authenticator(key)
     try:
         port.send(cmd)
         now = time.monotonic()
@@ -138,8 +144,10 @@ def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float)
             if time.monotonic() >= t_resend:
                 port.send(cmd)
                 t_resend += RESEND_S
+        hint = "" if key is not None else " (and given its key, --key-file?)"
         raise BusError(f"fault: no FAULT_ACK for request {cmd.request_id} within "
-                       f"{timeout_s:g} s: is the plant running on {interface} {channel}?")
+                       f"{timeout_s:g} s: is the plant running on {interface} {channel}"
+                       f"{hint}?")
     finally:
         port.close()
 
@@ -187,7 +195,9 @@ def _cmd(args) -> int:
     else:
         cmd = build_command(vehicle, args.action, args.thruster, args.type, args.fraction,
                             args.at, args.clear_at, _request_id())
-    ack = send_and_wait(cmd, args.interface, args.channel, args.timeout)
+    key_file = args.key_file or (run / KEY_FILE if (run / KEY_FILE).exists() else None)
+    key = None if key_file is None else read_key(key_file)
+    ack = send_and_wait(cmd, args.interface, args.channel, args.timeout, key)
     what = f"{args.action} {args.type + ' ' if args.type else ''}{args.thruster or 'all'}"
     if ack.status == AckStatus.ACCEPTED:
         print(f"ok: plant accepted {what} (request {ack.request_id}, vehicle {vehicle.name})")
@@ -250,6 +260,8 @@ def register(sub) -> None:
                         "runs/up): its vehicle and, for list, its faults")
     p.add_argument("--timeout", type=number(gt=0, le=3600), default=5.0,
                    help="seconds to wait for FAULT_ACK")
+    p.add_argument("--key-file", help="the run's SecOC key (default RUN/secoc.key, made by "
+                                      "hil run / hil up)")
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")
     p.set_defaults(func=_cmd)

@@ -35,6 +35,7 @@ from hil.argtypes import number
 from hil.config import MAX_DURATION_S, REPO_ROOT, load_scenario
 from hil.errors import BusError, UsageError
 from hil.recorder import RrdRecorder, build_rrd, merge_by_tick, read_jsonl
+from hil.secoc_key import KEY_FILE, new_key_file
 from hil.summary import summarise
 from hil.timing import timing_summary
 from hil.verdict import EXIT_CODES, EXIT_RUN_FAILED
@@ -132,7 +133,7 @@ def _node_cmd(node: str, scenario: Path, out: Path, args,
               start_after: Path | None = None) -> list[str]:
     cmd = [sys.executable, "-m", "hil.nodes", node, "--scenario", str(scenario),
            "--out", str(out), "--mode", args.mode, "--interface", args.interface,
-           "--channel", args.channel]
+           "--channel", args.channel, "--key-file", str(out / KEY_FILE)]
     if start_after is not None:
         cmd += ["--start-after", str(start_after)]
     if getattr(args, "rt_priority", False):
@@ -173,6 +174,7 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
     for name in ("plant.jsonl", "flight.jsonl", "run.rrd", "summary.json", "plant.ready",
                  "flight.ready", "bus.log"):
         (out / name).unlink(missing_ok=True)
+    new_key_file(out)  # this run's SecOC key (hil.secoc_key), for the nodes and the panel
     monitor = BusMonitor(args.interface, args.channel, out / "bus.log")
     monitor.start()
     # The rerun recording is built from the JSON lines after the run (``build_rrd``): logging it

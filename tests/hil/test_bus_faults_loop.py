@@ -20,6 +20,7 @@ from hil.node_settings import parse_settings
 from hil.node_shell import open_port
 from hil.plant_shell import PlantShell
 from hil.recorder import read_jsonl
+from hil.secoc_key import new_key_file
 from hil.summary import summarise
 
 BASE = ("name: hostile\nvehicle: generic\nduration_s: {d}\nseed: 0\n"
@@ -27,19 +28,21 @@ BASE = ("name: hostile\nvehicle: generic\nduration_s: {d}\nseed: 0\n"
 
 
 def run_pair(tmp_path: Path, body: str, duration_s: float = 30.0,
-             reply_timeout_s: float = 0.3) -> tuple[list, list, dict]:
+             reply_timeout_s: float = 0.3, key: bool = False,
+             attacker=None) -> tuple[list, list, dict]:
     scen = tmp_path / "s.yaml"
     scen.write_text(BASE.format(d=duration_s) + body)
     sc = load_scenario(scen)
     channel = f"hb-{uuid.uuid4().hex[:12]}"
     out = tmp_path / "run"
+    out.mkdir()
+    extra = ["--key-file", str(new_key_file(out))] if key else []
 
     def settings(node):
         return parse_settings([node, "--scenario", str(scen), "--out", str(out), "--mode",
                                "lockstep", "--interface", "virtual", "--channel", channel,
-                               "--reply-timeout", str(reply_timeout_s)])
+                               "--reply-timeout", str(reply_timeout_s), *extra])
 
-    out.mkdir()
     fs = settings("flight")
     flight = FlightShell(sc, open_port(fs, out, "flight"), out, fs)
     ps = settings("plant")
@@ -47,6 +50,8 @@ def run_pair(tmp_path: Path, body: str, duration_s: float = 30.0,
     done = threading.Event()
     th = threading.Thread(target=flight.run_lockstep, args=(done.is_set,), daemon=True)
     th.start()
+    if attacker is not None:
+        threading.Thread(target=attacker, args=(channel, done), daemon=True).start()
     try:
         plant.run_lockstep(lambda: False)
     finally:
@@ -173,3 +178,34 @@ def test_panel_bus_command_errors_are_one_line():
         build_bus_command("inject", "bus_drop", "plant", 0.3, None, None, "NOPE", None, None, 1)
     with pytest.raises(FaultCommandError, match=r"^fault: --delay-ms: expected a delay"):
         build_bus_command("inject", "bus_delay", "plant", None, None, None, None, None, None, 1)
+
+
+def test_forged_fault_and_thruster_commands_change_nothing_with_secoc(tmp_path):
+    """A third node with valid E2E (its own CRCs and counters) but no key: its FAULT_CMD
+    ("stuck on" for X-) and THR_CMD (every thruster full on) are refused and counted."""
+    from bus.catalog import FaultAction, FaultKind
+    from bus.codec import FaultCmd, ThrCmd
+    from bus.transport import BusConfig, Port, open_bus
+
+    def attacker(channel, done):
+        port = Port(open_bus(BusConfig(interface="virtual", channel=channel)))
+        n = 0
+        while not done.wait(0.05):
+            n += 1
+            port.send(FaultCmd(n % 256, FaultAction.INJECT, FaultKind.STUCK_ON, 1, 1.0, 0.0,
+                               None))
+            port.send(ThrCmd(10_000 + n, (20,) * 12, 0xF, 0))
+        port.close()
+
+    precs, frecs, s = run_pair(tmp_path, "", duration_s=6.0, key=True, attacker=attacker)
+    assert s["faults"] == [] and s["detections"] == []
+    pb = s["bus"]["plant"]
+    assert pb["auth_ok"] >= 25  # the flight's own commands, one per tick
+    assert pb["auth_missing"] > 10  # the forged FAULT_CMD and THR_CMD
+    assert s["bus"]["flight"]["auth_missing"] > 5  # the flight hears FAULT_CMD too
+    assert not any("fault injected" in e for r in precs for e in r.get("events", []))
+    assert any("without its authenticator" in e for r in precs for e in r.get("events", []))
+    key_text = (tmp_path / "run" / "secoc.key").read_text().strip()
+    for f in (tmp_path / "run").iterdir():  # the key is in its file only
+        assert f.name == "secoc.key" or key_text not in f.read_text(errors="replace")
+    assert oct((tmp_path / "run" / "secoc.key").stat().st_mode & 0o777) == "0o600"
