@@ -90,7 +90,8 @@ class Authenticator:
 
     # -- receiver -------------------------------------------------------------------------
 
-    def accept(self, items: list[tuple[Message, float]], now_s: float) -> list[tuple[Message, float]]:
+    def accept(self, items: list[tuple[Message, float]],
+               now_s: float) -> list[tuple[Message, float]]:
         """The received messages that may be used: unsecured ones as they are, secured ones
         once their authenticator arrived and checks; authenticators are consumed."""
         out: list[tuple[Message, float]] = []

@@ -26,8 +26,8 @@ from pathlib import Path
 
 from bus.catalog import AckReason, AckStatus, FaultAction, FaultKind, Node
 from bus.codec import FaultAck, FaultCmd
-from hil.argtypes import number
 from bus.faults import MESSAGE_NAMES
+from hil.argtypes import number
 from hil.binding import FAULT_KIND_TO_BUS, PANEL_BABBLE_FULL_HZ, fault_cmd_inject
 from hil.config import MAX_DURATION_S, THRUSTER_FAULTS, VehicleCfg, load_vehicle
 from hil.errors import BusError, FaultCommandError, UsageError
@@ -123,9 +123,7 @@ def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float,
     the next counter, which the receiver takes; the plant acknowledges a repeated request
     again without applying it twice (``hil.nodes.PlantShell.on_fault_cmd``).
     """
-    from bus.transport import BusConfig, Port, open_bus
-
-    from bus.transport import node_filters
+    from bus.transport import BusConfig, Port, node_filters, open_bus
 
     port = Port(open_bus(BusConfig(interface=interface, channel=channel,
                                    kwargs={"can_filters": node_filters(Node.PANEL)})))
