@@ -37,7 +37,12 @@ from bus.codec import FaultCmd, FaultCmdMac, Message, ThrCmd, ThrCmdMac, encode
 MAC_BITS = 24
 KEY_BYTES = 32
 FAULT_FRESH_WINDOW_S = 2.0  # a FAULT_CMD freshness this far from the receiver's clock is refused
-MATCH_WINDOW_S = 0.1  # a secured message and its authenticator arrive within this of each other
+# A secured message and its authenticator are sent together: when a frame received this much
+# later than the message has been read and its authenticator has not, it is missing. Judged on
+# receive times, not on when the reader got round to them (a loaded reader is not a forger);
+# WAIT_LIMIT_S bounds the wait when nothing at all follows.
+MATCH_WINDOW_S = 0.1
+WAIT_LIMIT_S = 1.0
 CLASSES = ("auth_ok", "auth_fail", "auth_missing", "auth_replay")
 SECURED: dict[type, type] = {ThrCmd: ThrCmdMac, FaultCmd: FaultCmdMac}
 
@@ -74,6 +79,7 @@ class Authenticator:
         self.events_given = 0
         self._msgs: dict[tuple[type, int], tuple[Message, float]] = {}
         self._macs: dict[tuple[type, int], tuple[ThrCmdMac, float]] = {}
+        self._latest_rx = -float("inf")
 
     def __repr__(self) -> str:  # never show the key
         return f"Authenticator(counts={dict(self.counts)})"
@@ -96,6 +102,7 @@ class Authenticator:
         once their authenticator arrived and checks; authenticators are consumed."""
         out: list[tuple[Message, float]] = []
         for msg, rx in items:
+            self._latest_rx = max(self._latest_rx, rx)
             if isinstance(msg, ThrCmdMac):  # FaultCmdMac is a subclass
                 of = FaultCmd if isinstance(msg, FaultCmdMac) else ThrCmd
                 k = (of, msg.key_lo)
@@ -119,13 +126,17 @@ class Authenticator:
         return out
 
     def expire(self, now_s: float) -> None:
-        """Secured messages whose authenticator did not come in time: counted, dropped."""
+        """Secured messages whose authenticator did not come in time (see ``MATCH_WINDOW_S``):
+        counted, dropped; authenticators without their message: dropped."""
+        def late(rx: float) -> bool:
+            return self._latest_rx - rx > MATCH_WINDOW_S or now_s - rx > WAIT_LIMIT_S
+
         for k, (m, rx) in list(self._msgs.items()):
-            if now_s - rx > MATCH_WINDOW_S:
+            if late(rx):
                 del self._msgs[k]
                 self._miss(m)
         for k, (_, rx) in list(self._macs.items()):
-            if now_s - rx > MATCH_WINDOW_S:
+            if late(rx):
                 del self._macs[k]
 
     def _miss(self, m: Message) -> None:

@@ -66,8 +66,8 @@ def test_forged_commands_with_valid_crc_are_refused_and_counted(tx_key):
             a.send(ThrCmd(n, (20, 20, 20), 1, n))
         a.send(FaultCmd(3, FaultAction.INJECT, FaultKind.STUCK_ON, 1, 1.0, 0.0, None))
         got = take(b)
-        time.sleep(0.15)
-        b.poll(0.0)  # the missing authenticators time out
+        time.sleep(1.05)
+        b.poll(0.0)  # nothing followed: the missing authenticators time out (WAIT_LIMIT_S)
     finally:
         a.close()
         b.close()
@@ -118,3 +118,17 @@ def test_fault_cmd_freshness_window_and_replay():
     assert rx.accept([(f, now + 10), (old, now + 10)], now + 10.0) == []
     assert rx.counts["auth_replay"] == 2 and rx.counts["auth_ok"] == 1
     assert "key" not in repr(rx).replace("counts", "") or KEY.hex() not in repr(rx)
+
+
+def test_a_slow_reader_does_not_lose_a_message_whose_authenticator_waits_in_the_queue():
+    tx, rx = Authenticator(KEY), Authenticator(KEY)
+    cmd = ThrCmd(3, (3, 0, 0), 1, 3)
+    mac = tx.sign(cmd, 0.0)
+    # Read 0.5 s after they arrived, in two polls (a loaded machine, a bounded poll).
+    assert rx.accept([(cmd, 10.0)], 10.5) == []
+    assert rx.accept([(mac, 10.001)], 10.6) == [(cmd, 10.0)]
+    # A forged one: a frame received 0.2 s later shows its authenticator is not coming.
+    forged = ThrCmd(4, (20, 20, 20), 1, 4)
+    assert rx.accept([(forged, 11.0)], 11.0) == []
+    assert rx.accept([(Sync(5, 0), 11.2)], 11.2) == [(Sync(5, 0), 11.2)]
+    assert rx.counts["auth_missing"] == 1 and rx.counts["auth_ok"] == 1

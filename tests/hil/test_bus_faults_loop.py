@@ -209,3 +209,58 @@ def test_forged_fault_and_thruster_commands_change_nothing_with_secoc(tmp_path):
     for f in (tmp_path / "run").iterdir():  # the key is in its file only
         assert f.name == "secoc.key" or key_text not in f.read_text(errors="replace")
     assert oct((tmp_path / "run" / "secoc.key").stat().st_mode & 0o777) == "0o600"
+
+
+def test_realtime_plant_holds_the_last_command_through_a_gap(tmp_path):
+    """``thr_cmd_missing: hold`` in real time: a fake flight commands every tick, falls
+    silent (commands only, heartbeat kept) for two ticks, and comes back: the plant repeats
+    its last command in the gap and never goes safe."""
+    import time
+
+    from bus.catalog import Node, NodeState
+    from bus.codec import Gyro, Heartbeat, ThrCmd
+    from bus.transport import BusConfig, Port, open_bus
+
+    scen = tmp_path / "s.yaml"
+    scen.write_text(BASE.format(d=2.0) + "safety: {thr_cmd_missing: hold, "
+                                         "thr_cmd_lost_ticks: 4, heartbeat_lost_s: 1.0}\n")
+    out = tmp_path / "plant"
+    out.mkdir()
+    ch = f"hb-{uuid.uuid4().hex[:12]}"
+    args = parse_settings(["plant", "--scenario", str(scen), "--out", str(out), "--mode",
+                           "realtime", "--interface", "virtual", "--channel", ch])
+    shell = PlantShell(load_scenario(scen), open_port(args, out, "plant"), out, args)
+    flight = Port(open_bus(BusConfig(interface="virtual", channel=ch)))
+    done = threading.Event()
+
+    def fake_flight():
+        t0, k, next_cmd = time.monotonic(), 0, 0.0
+        while not done.is_set() and time.monotonic() - t0 < 2.0:
+            flight.send(Heartbeat(Node.FLIGHT, NodeState.RUN))
+            seq = None
+            for msg, _ in flight.poll(0.02):
+                if isinstance(msg, Gyro):
+                    seq = msg.sample_seq
+            t = time.monotonic() - t0
+            if seq is not None and t >= next_cmd:
+                if not 0.6 <= t < 1.1:  # the gap: about two ticks without a command
+                    flight.send(ThrCmd(k, (20,) * 6, 1, seq))
+                k += 1
+                next_cmd += 0.2
+
+    th = threading.Thread(target=fake_flight)
+    th.start()
+    try:
+        assert shell.run_realtime(lambda: False) == 0
+    finally:
+        done.set()
+        th.join()
+        shell.port.close()
+        flight.close()
+    recs = list(read_jsonl(out / "plant.jsonl"))
+    events = [e for r in recs for e in r.get("events", [])]
+    assert any("holding the command of tick" in e for e in events), events
+    assert not any(e.startswith("safe:") for e in events), events
+    # The held command fires in the gap: thrust inside it.
+    gap = [r for r in recs if 0.9 <= r["t_s"] <= 1.1 and "series" in r]
+    assert gap and max(max(r["series"]["truth/thrust_n"].values()) for r in gap) > 0.5
