@@ -121,7 +121,9 @@ def node_config(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
     return {"scenario": sc.cfg.name, "vehicle": sc.vehicle.name,
             "vehicle_file": str(vfile.resolve()),
             "thrusters": [t.name for t in sc.vehicle.thrusters], "mode": settings.mode,
-            "bus": f"{settings.interface} {settings.channel}", "safety": safety}
+            "bus": f"{settings.interface} {settings.channel}", "safety": safety,
+            # THR_CMD and FAULT_CMD authenticated (bus.secoc): only with --key-file
+            "secoc": settings.key_file is not None}
 
 
 def first_record(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
