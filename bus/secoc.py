@@ -52,9 +52,11 @@ def message_key(msg: Message) -> int:
     return (msg.tick if isinstance(msg, ThrCmd) else msg.request_id) & 0xFF
 
 
-def compute_mac(key: bytes, msg: Message, freshness: int) -> int:
-    """The 24-bit truncated HMAC-SHA256 of ``msg`` with ``freshness`` (module doc)."""
-    frames = encode(msg)
+def compute_mac(key: bytes, msg: Message, freshness: int, frames: list | None = None) -> int:
+    """The 24-bit truncated HMAC-SHA256 of ``msg`` with ``freshness`` (module doc);
+    ``frames``: ``encode(msg)`` when the caller has it already (encoding costs more than the
+    MAC)."""
+    frames = encode(msg) if frames is None else frames
     data = frames[0].arbitration_id.to_bytes(2, "big") + b"".join(f.data for f in frames) + \
         int(freshness).to_bytes(8, "big")
     return int.from_bytes(hmac.new(key, data, hashlib.sha256).digest()[: MAC_BITS // 8], "big")
@@ -86,13 +88,14 @@ class Authenticator:
 
     # -- sender ---------------------------------------------------------------------------
 
-    def sign(self, msg: Message, now_s: float) -> Message | None:
-        """The authenticator message to send right after ``msg`` (None: not secured)."""
+    def sign(self, msg: Message, now_s: float, frames: list | None = None) -> Message | None:
+        """The authenticator message to send right after ``msg`` (None: not secured);
+        ``frames``: ``encode(msg)`` if the caller has it."""
         mac_type = SECURED.get(type(msg))
         if mac_type is None:
             return None
         fv = msg.tick if isinstance(msg, ThrCmd) else fault_freshness(now_s)
-        return mac_type(message_key(msg), fv & 0xFFFF, compute_mac(self._key, msg, fv))
+        return mac_type(message_key(msg), fv & 0xFFFF, compute_mac(self._key, msg, fv, frames))
 
     # -- receiver -------------------------------------------------------------------------
 

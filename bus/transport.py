@@ -201,10 +201,11 @@ class Port:
         """A time of this port's clock converted to ``time.monotonic()`` seconds."""
         return t_realtime_s + self.monotonic_offset_s
 
-    def protect(self, msg: Message) -> list[Frame]:
-        """The frames of ``msg`` with E2E counter and CRC (advances the counters)."""
+    def protect(self, msg: Message, plain: list[Frame] | None = None) -> list[Frame]:
+        """The frames of ``msg`` with E2E counter and CRC (advances the counters); ``plain``:
+        ``encode(msg)`` when the caller has it already."""
         out = []
-        for fr in encode(msg):
+        for fr in encode(msg) if plain is None else plain:
             f_def = self.receiver.catalog.by_id[fr.arbitration_id]
             out.append(Frame(fr.arbitration_id, self.protector.protect(f_def.data_id, fr.data)))
         return out
@@ -216,11 +217,17 @@ class Port:
         EncodeError for illegal values (before anything is sent). A transmit failure (buffer
         full, interface down) is counted in ``tx_errors``, not raised: the peer sees a gap.
         """
-        if self.auth is not None:
+        if self.auth is None:
+            frames = [fr for msg in msgs for fr in self.protect(msg)]
+        else:  # each secured message followed by its authenticator (bus.secoc)
             now = self.now_s()
-            msgs = tuple(m for msg in msgs
-                         for m in (msg, self.auth.sign(msg, now)) if m is not None)
-        frames = [fr for msg in msgs for fr in self.protect(msg)]
+            frames = []
+            for msg in msgs:
+                plain = encode(msg)
+                frames += self.protect(msg, plain)
+                mac = self.auth.sign(msg, now, plain)
+                if mac is not None:
+                    frames += self.protect(mac)
         if self.send_hook is not None:
             self.release_due()
             frames = self.send_hook(frames)
