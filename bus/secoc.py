@@ -43,6 +43,7 @@ FAULT_FRESH_WINDOW_S = 2.0  # a FAULT_CMD freshness this far from the receiver's
 # WAIT_LIMIT_S bounds the wait when nothing at all follows.
 MATCH_WINDOW_S = 0.1
 WAIT_LIMIT_S = 1.0
+PER_KEY = 4  # secured messages of one key waiting for an authenticator at most
 CLASSES = ("auth_ok", "auth_fail", "auth_missing", "auth_replay")
 SECURED: dict[type, type] = {ThrCmd: ThrCmdMac, FaultCmd: FaultCmdMac}
 
@@ -79,7 +80,9 @@ class Authenticator:
         self.counts: Counter[str] = Counter({c: 0 for c in CLASSES})
         self.events: list[str] = []
         self.events_given = 0
-        self._msgs: dict[tuple[type, int], tuple[Message, float]] = {}
+        # Secured messages waiting for their authenticator, by (type, key): a few per key, so
+        # that a forged message with the key of a genuine one cannot push the genuine one out.
+        self._msgs: dict[tuple[type, int], list[tuple[Message, float]]] = {}
         self._macs: dict[tuple[type, int], tuple[ThrCmdMac, float]] = {}
         self._latest_rx = -float("inf")
 
@@ -110,19 +113,19 @@ class Authenticator:
                 of = FaultCmd if isinstance(msg, FaultCmdMac) else ThrCmd
                 k = (of, msg.key_lo)
                 if k in self._msgs:
-                    m, rx_m = self._msgs.pop(k)
-                    self._check(m, msg, now_s, rx_m, out)
+                    self._check_any(self._msgs.pop(k), msg, now_s, out)
                 else:
                     self._macs[k] = (msg, rx)
             elif type(msg) in SECURED:
                 k = (type(msg), message_key(msg))
                 if k in self._macs:
                     mac, _ = self._macs.pop(k)
-                    self._check(msg, mac, now_s, rx, out)
+                    self._check_any([(msg, rx)], mac, now_s, out)
                 else:
-                    if k in self._msgs:  # a second message of the key before its MAC
-                        self._miss(self._msgs[k][0])
-                    self._msgs[k] = (msg, rx)
+                    waiting = self._msgs.setdefault(k, [])
+                    if len(waiting) >= PER_KEY:  # the oldest has waited long enough
+                        self._miss(waiting.pop(0)[0])
+                    waiting.append((msg, rx))
             else:
                 out.append((msg, rx))
         self.expire(now_s)
@@ -134,10 +137,12 @@ class Authenticator:
         def late(rx: float) -> bool:
             return self._latest_rx - rx > MATCH_WINDOW_S or now_s - rx > WAIT_LIMIT_S
 
-        for k, (m, rx) in list(self._msgs.items()):
-            if late(rx):
+        for k, waiting in list(self._msgs.items()):
+            for item in [w for w in waiting if late(w[1])]:
+                waiting.remove(item)
+                self._miss(item[0])
+            if not waiting:
                 del self._msgs[k]
-                self._miss(m)
         for k, (_, rx) in list(self._macs.items()):
             if late(rx):
                 del self._macs[k]
@@ -152,25 +157,46 @@ class Authenticator:
             self.events.append(text + (" (further ones counted only)"
                                        if self.events_given == 20 else ""))
 
+    def _check_any(self, waiting: list[tuple[Message, float]], mac: ThrCmdMac, now_s: float,
+                   out: list[tuple[Message, float]]) -> None:
+        """The authenticator against the messages waiting with its key, newest first: the
+        first that verifies is checked for freshness and used; the others failed."""
+        for k, (m, rx) in enumerate(reversed(waiting)):
+            if self._verifies(m, mac, now_s):
+                for m2, _ in waiting[: len(waiting) - 1 - k] + waiting[len(waiting) - k:]:
+                    self._fail(m2)
+                self._check(m, mac, now_s, rx, out)
+                return
+        for m, _ in waiting:
+            self._fail(m)
+
+    def _fail(self, m: Message) -> None:
+        self.counts["auth_fail"] += 1
+        self._event(f"{type(m).__name__} failed authentication: not used")
+
+    def _freshness(self, m: Message, mac: ThrCmdMac, now_s: float) -> int:
+        if isinstance(m, ThrCmd):
+            return m.tick
+        mine = fault_freshness(now_s)
+        # The value nearest our clock whose low 16 bits are the ones sent.
+        fv = mine - ((mine - mac.fresh_lo) & 0xFFFF)
+        return fv + 0x10000 if mine - fv > 0x8000 else fv
+
+    def _verifies(self, m: Message, mac: ThrCmdMac, now_s: float) -> bool:
+        fv = self._freshness(m, mac, now_s)
+        return hmac.compare_digest(compute_mac(self._key, m, fv).to_bytes(3, "big"),
+                                   int(mac.mac).to_bytes(3, "big"))
+
     def _check(self, m: Message, mac: ThrCmdMac, now_s: float, rx: float,
                out: list[tuple[Message, float]]) -> None:
+        """``m`` verified against ``mac``: used when fresh, else counted as a replay."""
+        fv = self._freshness(m, mac, now_s)
         if isinstance(m, ThrCmd):
-            fv = m.tick
             fresh = (fv & 0xFFFF) == mac.fresh_lo and (self.last_tick is None
                                                       or fv > self.last_tick)
         else:
-            mine = fault_freshness(now_s)
-            # The value nearest our clock whose low 16 bits are the ones sent.
-            fv = mine - ((mine - mac.fresh_lo) & 0xFFFF)
-            if mine - fv > 0x8000:
-                fv += 0x10000
-            fresh = abs(fv - mine) <= FAULT_FRESH_WINDOW_S * 100 and (
+            fresh = abs(fv - fault_freshness(now_s)) <= FAULT_FRESH_WINDOW_S * 100 and (
                 self.last_fault_fv is None or fv > self.last_fault_fv)
-        if not hmac.compare_digest(compute_mac(self._key, m, fv).to_bytes(3, "big"),
-                                   int(mac.mac).to_bytes(3, "big")):
-            self.counts["auth_fail"] += 1
-            self._event(f"{type(m).__name__} failed authentication: not used")
-            return
         if not fresh:
             self.counts["auth_replay"] += 1
             self._event(f"{type(m).__name__} authentic but not fresh (replay): not used")
