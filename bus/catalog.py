@@ -79,6 +79,7 @@ class FaultKind(IntEnum):
     BUS_DELAY = 9
     BUS_CORRUPT = 10
     NODE_SILENT = 11
+    BUS_BABBLE = 12
 
 
 class FaultAction(IntEnum):
@@ -126,6 +127,9 @@ class GyroStatus(IntEnum):
     VALID = 0x01
     SATURATED = 0x02
     FROZEN = 0x04  # plant-side test flag; the flight must not rely on it
+    # The plant did not apply the flight's last command (missing, late, refused, or the plant
+    # is safe): the rate change up to this sample is no evidence about the thrusters.
+    CMD_NOT_APPLIED = 0x08
 
 
 def _enum_choices(enum: type[IntEnum]) -> dict[int, str]:
@@ -261,6 +265,23 @@ _tick_lo = dict(unit="tick", comment="tick number modulo 256 (set key)")
 _all = (Node.PLANT, Node.FLIGHT, Node.PANEL)
 
 
+def _mac_frame(name: str, frame_id: int, sender: Node, receivers: tuple[Node, ...],
+               cycle_s: float | None, deadline_s: float, of: str) -> FrameDef:
+    """The authenticator of a secured message (``bus.secoc``, AUTOSAR SecOC's secured PDU
+    trailer sent as a frame of its own): the message's key (low 8 bits), the freshness value
+    (low 16 bits) and a 24-bit truncated HMAC-SHA256."""
+    return FrameDef(
+        name, frame_id, 0x1000 + frame_id, sender, receivers,
+        (
+            _sig("key_lo", 12, 8, comment=f"low 8 bits of the {of} key (tick / request id)"),
+            _sig("fresh_lo", 20, 16, comment="freshness value, low 16 bits"),
+            _sig("mac", 36, 24, comment="HMAC-SHA256 truncated to 24 bits"),
+        ),
+        cycle_s=cycle_s, deadline_s=deadline_s,
+        comment=f"SecOC authenticator of {of} (bus.secoc)",
+    )
+
+
 def _thr_frame(k: int) -> FrameDef:
     sigs = [_sig("tick_lo", 12, 8, **_tick_lo)]
     for j in range(THRUSTERS_PER_FRAME):
@@ -356,6 +377,7 @@ CATALOG = Catalog(
             comment="thruster command header; frame 0 of the THR_CMD set (applied atomically)",
         ),
         *(_thr_frame(k) for k in range(N_THRUSTERS_MAX // THRUSTERS_PER_FRAME)),
+        _mac_frame("THR_CMD_MAC", 0x0A8, Node.FLIGHT, (Node.PLANT,), TICK_S, 0.1, "THR_CMD"),
         FrameDef(
             "GYRO_1",
             0x110,
@@ -387,8 +409,9 @@ CATALOG = Catalog(
                     "status",
                     50,
                     8,
-                    maximum=7,
-                    comment="bit 0 valid, bit 1 saturated, bit 2 frozen (test flag)",
+                    maximum=15,
+                    comment="bit 0 valid, bit 1 saturated, bit 2 frozen (test flag), "
+                            "bit 3 last command not applied",
                 ),
             ),
             cycle_s=GYRO_PERIOD_S,
@@ -427,11 +450,11 @@ CATALOG = Catalog(
             0x180,
             0x1180,
             Node.PANEL,
-            (Node.PLANT,),
+            (Node.PLANT, Node.FLIGHT),
             (
                 _sig("request_id", 12, 8),
                 _sig("action", 20, 2, minimum=1, maximum=2, choices=_enum_choices(FaultAction)),
-                _sig("kind", 22, 4, maximum=11, choices=_enum_choices(FaultKind),
+                _sig("kind", 22, 4, maximum=12, choices=_enum_choices(FaultKind),
                      comment="none (0) with a clear; the plant rejects an inject of none"),
                 _sig(
                     "thruster",
@@ -445,8 +468,12 @@ CATALOG = Catalog(
                     14,
                     scale=1e-4,
                     maximum=1.0,
-                    comment="residual or degraded thrust fraction, or fault magnitude 0..1",
+                    comment="residual or degraded thrust fraction, or fault magnitude 0..1; "
+                            "bus faults: probability (bus_delay: delay in s, bus_babble: "
+                            "rate / 20000 Hz)",
                 ),
+                _sig("message", 46, 6, comment="bus faults: 0 every frame, k the k-th name "
+                                               "of bus.faults.MESSAGE_NAMES"),
             ),
             cycle_s=None,
             deadline_s=1.0,
@@ -460,7 +487,7 @@ CATALOG = Catalog(
             0x181,
             0x1181,
             Node.PANEL,
-            (Node.PLANT,),
+            (Node.PLANT, Node.FLIGHT),
             (
                 _sig("request_id", 12, 8),
                 _sig("start_time", 20, 22, scale=0.01, unit="s", comment="sim time to start"),
@@ -480,6 +507,8 @@ CATALOG = Catalog(
             key_signal="request_id",
             comment="fault timing; frame 1 of the FAULT_CMD set",
         ),
+        _mac_frame("FAULT_CMD_MAC", 0x182, Node.PANEL, (Node.PLANT, Node.FLIGHT), None, 1.0,
+                   "FAULT_CMD"),
         FrameDef(
             "FAULT_ACK",
             0x1C0,
@@ -490,7 +519,7 @@ CATALOG = Catalog(
                 _sig("request_id", 12, 8),
                 _sig("status", 20, 2, minimum=1, maximum=2, choices=_enum_choices(AckStatus)),
                 _sig("reason", 22, 8, maximum=6, choices=_enum_choices(AckReason)),
-                _sig("kind", 30, 4, maximum=11, choices=_enum_choices(FaultKind)),
+                _sig("kind", 30, 4, maximum=12, choices=_enum_choices(FaultKind)),
             ),
             cycle_s=None,
             deadline_s=1.0,
@@ -527,6 +556,13 @@ SYNC_ID = CATALOG.frame("SYNC").frame_id
 THR_CMD_IDS = tuple(f.frame_id for f in CATALOG.set_frames("THR_CMD"))
 GYRO_IDS = tuple(f.frame_id for f in CATALOG.set_frames("GYRO"))
 FDIR_STATUS_ID = CATALOG.frame("FDIR_STATUS").frame_id
+def consumed_ids(node: Node, catalog: Catalog | None = None) -> tuple[int, ...]:
+    """Identifiers of the frames ``node`` receives (the catalog's ``receivers``), sorted: what
+    its kernel-side receive filter lets through (``bus.transport.node_filters``)."""
+    cat = catalog or CATALOG
+    return tuple(sorted(f.frame_id for f in cat.frames if node in f.receivers))
+
+
 FAULT_CMD_IDS = tuple(f.frame_id for f in CATALOG.set_frames("FAULT_CMD"))
 FAULT_ACK_ID = CATALOG.frame("FAULT_ACK").frame_id
 FLIGHT_TIMING_ID = CATALOG.frame("FLIGHT_TIMING").frame_id

@@ -335,6 +335,7 @@ class FaultCmd:
     fraction: float = 1.0
     start_time_s: float = 0.0
     clear_time_s: float | None = None
+    message: int = 0  # bus faults: 0 every frame, k the k-th of bus.faults.MESSAGE_NAMES
 
     def to_signals(self) -> Signals:
         return {
@@ -344,6 +345,7 @@ class FaultCmd:
                 "kind": int(self.kind),
                 "thruster": _thr(self.thruster),
                 "fraction": self.fraction,
+                "message": self.message,
             },
             "FAULT_CMD_1": {
                 "request_id": self.request_id,
@@ -363,6 +365,7 @@ class FaultCmd:
             a["fraction"],
             b["start_time"],
             None if b["clear_time"] == 0 else b["clear_time"],
+            int(a["message"]),
         )
 
 
@@ -452,9 +455,37 @@ class Heartbeat:
         )
 
 
-Message = Sync | Gyro | ThrCmd | FdirStatus | FaultCmd | FaultAck | FlightTiming | Heartbeat
+@dataclass(frozen=True)
+class ThrCmdMac:
+    """THR_CMD_MAC: the authenticator of THR_CMD (``bus.secoc``): key low 8 bits, freshness
+    low 16 bits, 24-bit truncated MAC."""
+
+    SET: ClassVar[str] = "THR_CMD_MAC"
+    key_lo: int
+    fresh_lo: int
+    mac: int
+
+    def to_signals(self) -> Signals:
+        return {self.SET: {"key_lo": self.key_lo, "fresh_lo": self.fresh_lo, "mac": self.mac}}
+
+    @classmethod
+    def from_signals(cls, sig: Signals):
+        s = sig[cls.SET]
+        return cls(int(s["key_lo"]), int(s["fresh_lo"]), int(s["mac"]))
+
+
+@dataclass(frozen=True)
+class FaultCmdMac(ThrCmdMac):
+    """FAULT_CMD_MAC: the authenticator of FAULT_CMD (fields as ``ThrCmdMac``)."""
+
+    SET: ClassVar[str] = "FAULT_CMD_MAC"
+
+
+Message = (Sync | Gyro | ThrCmd | FdirStatus | FaultCmd | FaultAck | FlightTiming | Heartbeat
+           | ThrCmdMac | FaultCmdMac)
 MESSAGE_TYPES: dict[str, type] = {
-    c.SET: c for c in (Sync, Gyro, ThrCmd, FdirStatus, FaultCmd, FaultAck, FlightTiming, Heartbeat)
+    c.SET: c for c in (Sync, Gyro, ThrCmd, FdirStatus, FaultCmd, FaultAck, FlightTiming, Heartbeat,
+                       ThrCmdMac, FaultCmdMac)
 }
 
 

@@ -87,14 +87,15 @@ class FastSocketcanBus(_sc.SocketcanBus):
         return mm.send(self.socket.fileno(), [_wire(fr) for fr in frames])
 
     def drain_frames(self, timeout_s: float, got: list[tuple[Frame, can.Message | None]],
-                     with_messages: bool = False) -> None:
-        """Append every queued frame to ``got`` (with its python-can message for a logger)."""
+                     with_messages: bool = False, limit: int | None = None) -> None:
+        """Append the queued frames to ``got`` (with its python-can message for a logger), at
+        most ``limit`` of them (None: every one)."""
         sock = self.socket
         if timeout_s > 0 and not select.select([sock], [], [], timeout_s)[0]:
             return
         mtu, anc_size = constants.CANFD_MTU, _ANC_SIZE
         ts_struct = _sc.RECEIVED_TIMESTAMP_STRUCT
-        while True:
+        while limit is None or len(got) < limit:
             try:
                 cf, anc, _flags, _addr = sock.recvmsg(mtu, anc_size, socket.MSG_DONTWAIT)
             except BlockingIOError:

@@ -18,7 +18,10 @@ unchanged.
 
 Send path. Every frame a ``Port`` sends passes ``Port.send_hook`` (when set) after encoding
 and E2E protection, just before the wire: the one place where bus faults (drop, delay,
-corrupt) attach.
+corrupt, babble, silence: ``bus.faults.SendFaults``) attach. A hook that holds frames back
+(delay) or adds its own (babble) also offers ``due(now_s)`` and ``next_due_s()``: the port
+sends what is due on every ``send`` and ``poll``, and a ``poll`` waits no longer than until
+the next one is due.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from typing import Any, Protocol, runtime_checkable
 import can
 from pydantic import BaseModel, ConfigDict, Field
 
-from bus.catalog import BITRATE_BPS
+from bus.catalog import BITRATE_BPS, Node, consumed_ids
 from bus.codec import Frame, Message, encode
 from bus.e2e import Protector
 from bus.errors import BusError
@@ -68,10 +71,18 @@ class FrameBus(Protocol):
 
     def send_frames(self, frames: list[Frame]) -> int: ...
 
-    def drain_frames(self, timeout_s: float, got: list, with_messages: bool = False) -> None: ...
+    def drain_frames(self, timeout_s: float, got: list, with_messages: bool = False,
+                     limit: int | None = None) -> None: ...
 
 
 SendHook = Callable[[list[Frame]], list[Frame]]
+
+
+def node_filters(node: Node) -> list[dict[str, Any]]:
+    """python-can ``can_filters`` letting through only the identifiers ``node`` consumes (from
+    the catalog). SocketCAN applies them in the kernel (``CAN_RAW_FILTER``): a frame of
+    another identifier never wakes the process; other interfaces filter in python-can."""
+    return [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in consumed_ids(node)]
 
 
 def open_bus(cfg: BusConfig | None = None) -> can.BusABC:
@@ -151,7 +162,7 @@ class Port:
 
     def __init__(
         self, bus: can.BusABC, receiver: Receiver | None = None, logger: BusLogger | None = None,
-        send_hook: SendHook | None = None,
+        send_hook: SendHook | None = None, max_frames_per_poll: int | None = None,
     ):
         self.bus = bus
         self.receiver = receiver or Receiver()
@@ -172,6 +183,14 @@ class Port:
             collections.deque(maxlen=4096) if _echoes_own_frames(bus) else None
         )
         self.echoes_dropped = 0
+        # Bounded work per poll: at most this many frames are taken from the socket per
+        # ``poll``; the rest wait in the kernel's queue for the next one (what overflows that
+        # queue the kernel drops and counts, ``kernel_drops``). None: no bound.
+        self.max_frames_per_poll = max_frames_per_poll
+        self.polls_capped = 0
+        # SecOC (bus.secoc.Authenticator): signs THR_CMD and FAULT_CMD on send, and hands on
+        # received ones only once authenticated. None: no authentication.
+        self.auth = None
 
     @staticmethod
     def now_s() -> float:
@@ -182,10 +201,11 @@ class Port:
         """A time of this port's clock converted to ``time.monotonic()`` seconds."""
         return t_realtime_s + self.monotonic_offset_s
 
-    def protect(self, msg: Message) -> list[Frame]:
-        """The frames of ``msg`` with E2E counter and CRC (advances the counters)."""
+    def protect(self, msg: Message, plain: list[Frame] | None = None) -> list[Frame]:
+        """The frames of ``msg`` with E2E counter and CRC (advances the counters); ``plain``:
+        ``encode(msg)`` when the caller has it already."""
         out = []
-        for fr in encode(msg):
+        for fr in encode(msg) if plain is None else plain:
             f_def = self.receiver.catalog.by_id[fr.arbitration_id]
             out.append(Frame(fr.arbitration_id, self.protector.protect(f_def.data_id, fr.data)))
         return out
@@ -197,8 +217,19 @@ class Port:
         EncodeError for illegal values (before anything is sent). A transmit failure (buffer
         full, interface down) is counted in ``tx_errors``, not raised: the peer sees a gap.
         """
-        frames = [fr for msg in msgs for fr in self.protect(msg)]
+        if self.auth is None:
+            frames = [fr for msg in msgs for fr in self.protect(msg)]
+        else:  # each secured message followed by its authenticator (bus.secoc)
+            now = self.now_s()
+            frames = []
+            for msg in msgs:
+                plain = encode(msg)
+                frames += self.protect(msg, plain)
+                mac = self.auth.sign(msg, now, plain)
+                if mac is not None:
+                    frames += self.protect(mac)
         if self.send_hook is not None:
+            self.release_due()
             frames = self.send_hook(frames)
         if self._raw is not None and len(frames) > 1:
             sent = self._raw.send_frames(frames)
@@ -221,6 +252,18 @@ class Port:
         frames = [fr] if self.send_hook is None else self.send_hook([fr])
         sent = [self._put(f) for f in frames]
         return bool(sent) and all(sent)
+
+    def release_due(self) -> int:
+        """Send what the send hook held back and is now due (delayed or babbled frames)."""
+        due = getattr(self.send_hook, "due", None)
+        if due is None:
+            return 0
+        return sum(self._put(fr) for fr in due(self.now_s()))
+
+    def _hook_wait_s(self, timeout_s: float) -> float:
+        nxt = getattr(self.send_hook, "next_due_s", None)
+        t = None if nxt is None else nxt()
+        return timeout_s if t is None else max(0.0, min(timeout_s, t - self.now_s()))
 
     def _put(self, fr: Frame) -> bool:
         """One frame on the wire, counted in ``tx_frames`` or ``tx_errors``."""
@@ -246,13 +289,21 @@ class Port:
         return ok
 
     def poll(self, timeout_s: float = 0.0) -> list[tuple[Message, float]]:
-        """Wait up to ``timeout_s`` for the first frame, then drain what is queued."""
+        """Wait up to ``timeout_s`` for the first frame, then drain what is queued (the wait
+        ends early when the send hook has frames due, which then go out)."""
         got: list[tuple[Frame, can.Message | None]] = []
+        if self.send_hook is not None:
+            self.release_due()
+            timeout_s = self._hook_wait_s(timeout_s)
         try:
+            cap = self.max_frames_per_poll
             if self._raw is not None:
-                self._raw.drain_frames(timeout_s, got, with_messages=self.logger is not None)
+                self._raw.drain_frames(timeout_s, got, with_messages=self.logger is not None,
+                                       limit=cap)
             else:
-                self._drain_python_can(timeout_s, got)
+                self._drain_python_can(timeout_s, got, cap)
+            if cap is not None and len(got) >= cap:
+                self.polls_capped += 1
         except (can.CanError, OSError) as exc:
             self.receiver.counters["internal"] += 1
             self.receiver.events.append(Verdict("internal", detail=f"bus: recv failed: {exc}"))
@@ -265,13 +316,18 @@ class Port:
             if v.message is not None:
                 out.append((v.message, v.rx_time_s))
         self.receiver.expire(now)
+        if self.auth is not None:
+            out = self.auth.accept(out, now)
+        if self.send_hook is not None:
+            self.release_due()
         return out
 
     def _drain_python_can(self, timeout_s: float,
-                          got: list[tuple[Frame, can.Message | None]]) -> None:
+                          got: list[tuple[Frame, can.Message | None]],
+                          cap: int | None = None) -> None:
         timeout: float | None = timeout_s
         echo = self._echo
-        while True:
+        while cap is None or len(got) < cap:
             m = self.bus.recv(timeout)
             if m is None:
                 return
@@ -284,9 +340,16 @@ class Port:
 
     def counts(self) -> dict[str, int]:
         out = {**self.receiver.counts(), "tx_frames": self.tx_frames, "tx_errors": self.tx_errors}
+        injected = getattr(self.send_hook, "counts", None)
+        if injected is not None:  # bus faults this node's send path injected (bus.faults)
+            out.update({f"injected_{k}": v for k, v in injected.items()})
         drops = getattr(self.bus, "kernel_drops", None)
         if drops is not None:  # SocketCAN: frames the kernel dropped, receive queue full
             out["kernel_drops"] = drops
+        if self.max_frames_per_poll is not None:
+            out["polls_capped"] = self.polls_capped
+        if self.auth is not None:
+            out.update(self.auth.counts)
         return out
 
     def close(self) -> None:

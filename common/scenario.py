@@ -28,11 +28,11 @@ from common.schema import (
 
 THRUSTER_FAULTS = ("stuck_on", "fail_to_fire", "degraded")
 GYRO_FAULTS = ("gyro_spike", "gyro_bias_step", "gyro_frozen", "gyro_noise")
-BUS_FAULTS = ("bus_drop", "bus_delay", "bus_corrupt", "node_silent")
+BUS_FAULTS = ("bus_drop", "bus_delay", "bus_corrupt", "node_silent", "bus_babble")
 FaultKind = Literal[
     "stuck_on", "fail_to_fire", "degraded",
     "gyro_spike", "gyro_bias_step", "gyro_frozen", "gyro_noise",
-    "bus_drop", "bus_delay", "bus_corrupt", "node_silent",
+    "bus_drop", "bus_delay", "bus_corrupt", "node_silent", "bus_babble",
 ]
 
 
@@ -41,8 +41,16 @@ class FaultSpec(_Model):
 
     ``fraction``: for ``stuck_on`` the residual thrust when commanded off (1.0 = full); for
     ``degraded`` the thrust that remains. Gyro faults use ``axis`` (0..2, or None for all) and
-    ``magnitude_rad_s`` (spike, bias step, noise std). Bus faults use ``node`` and
-    ``probability`` / ``delay_ms``.
+    ``magnitude_rad_s`` (spike, bias step, noise std). Bus faults (``bus.faults``, the send
+    path of ``node``) use ``probability`` (per frame), ``message`` (a catalog message or frame
+    name such as ``GYRO`` or ``THR_CMD_0``: only its frames; None: every frame the node
+    sends), ``pattern`` (``bus_drop``: 1 = drop, 0 = pass, cycled over the matching frames,
+    instead of ``probability``), ``delay_ms`` / ``delay_max_ms`` (``bus_delay``: fixed, or
+    uniform in [delay_ms, delay_max_ms]) and ``reorder`` (delayed frames may overtake one
+    another; default they keep their order), ``corrupt`` (``bus_corrupt``: flip ``bits``
+    bits of the ``data``, one bit of the ``id``, or change the ``length``), ``rate_hz``
+    (``bus_babble``: frames per second of garbage the node floods, on ``message``'s first
+    identifier with a random payload, or identifier 0x000 without one).
     """
 
     kind: FaultKind
@@ -55,6 +63,13 @@ class FaultSpec(_Model):
     node: Literal["flight", "plant"] | None = None
     probability: Fraction = 1.0
     delay_ms: NonNegFloat = 0.0
+    delay_max_ms: NonNegFloat | None = None
+    reorder: bool = False
+    message: str | None = None
+    pattern: list[Literal[0, 1]] | None = Field(default=None, min_length=1, max_length=1000)
+    corrupt: Literal["data", "id", "length"] = "data"
+    bits: int = Field(default=1, ge=1, le=64)
+    rate_hz: Annotated[float, Field(gt=0, le=20000)] = 1000.0
 
     @model_validator(mode="after")
     def _consistent(self) -> FaultSpec:
@@ -69,6 +84,10 @@ class FaultSpec(_Model):
             raise _FieldError("magnitude_rad_s", f"a magnitude for a {self.kind} fault", None)
         if self.kind in BUS_FAULTS and self.node is None:
             raise _FieldError("node", "'flight' or 'plant' for a bus fault", None)
+        if self.delay_max_ms is not None and self.delay_max_ms < self.delay_ms:
+            raise _FieldError("delay_max_ms", f">= delay_ms={self.delay_ms}", self.delay_max_ms)
+        if self.pattern is not None and self.kind != "bus_drop":
+            raise _FieldError("pattern", "no pattern (only bus_drop takes one)", self.pattern)
         return self
 
     @property
@@ -176,6 +195,11 @@ class SafetyCfg(_Model):
     # The plant leaves its safe state only after this many fresh THR_CMD of consecutive
     # ticks (hil.safe_states.CommandGate), not on the first frame after a stall.
     recover_ticks: int = Field(default=3, ge=1, le=50, strict=True)
+    # What the plant does for a tick whose THR_CMD is missing, late or refused, before
+    # ``thr_cmd_lost_ticks`` in a row make it safe: "zero" fires nothing that tick (the valves
+    # close, manifolds stay as commanded), "hold" repeats the last command it applied
+    # (docs/hostile-bus.md).
+    thr_cmd_missing: Literal["zero", "hold"] = "zero"
 
 
 LCM_URL_PATTERN = r"^(udpm|tcpq)://[^\s]+$"

@@ -107,6 +107,13 @@ class GyroCheck:
         self._pending = None
         self._chain = False
 
+    def skip(self, y: np.ndarray) -> None:
+        """A tick whose data is not evidence (sample missing or propagated, command not
+        applied): ``y`` becomes the previous output without being judged, a held jump is
+        dropped."""
+        self._y_prev = np.asarray(y, dtype=float).copy()
+        self.forget_pending()
+
     def _report(self, kind: str) -> str | None:
         if self.fault is not None:
             return None

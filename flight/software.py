@@ -172,19 +172,33 @@ class FlightSoftware:
 
     # ------------------------------------------------------------------ pipeline
 
-    def step(self, tick: int, gyro_B_rad_s: np.ndarray) -> TickOutput:
-        """One whole tick (all stages in order)."""
-        self.begin(tick, gyro_B_rad_s)
+    def step(self, tick: int, gyro_B_rad_s: np.ndarray, *, fresh: bool = True,
+             evidence: bool = True) -> TickOutput:
+        """One whole tick (all stages in order); ``fresh``/``evidence`` as in ``begin``."""
+        self.begin(tick, gyro_B_rad_s, fresh=fresh, evidence=evidence)
         for name in self.STAGES:
             getattr(self, "stage_" + name)()
         return self.finish()
 
-    def begin(self, tick: int, gyro_B_rad_s: np.ndarray) -> None:
-        """Stage "read gyro": take the newest sample (3,) for tick ``tick``."""
+    def begin(self, tick: int, gyro_B_rad_s: np.ndarray, *, fresh: bool = True,
+              evidence: bool = True) -> None:
+        """Stage "read gyro": take the newest sample (3,) for tick ``tick``.
+
+        ``fresh`` False: no valid sample came for this tick (dropped, late, rejected); the
+        flight propagates: the onboard model's prediction for this tick stands in for the
+        measurement. ``evidence`` False: the sample is real but the tick must not count as
+        evidence (the plant did not apply the last command, docs/hostile-bus.md). Either way
+        the tick feeds nothing to the gyro check, the detector, the effectiveness learning or
+        the Kalman leak test, and the onboard model restarts from the estimate.
+        """
         if tick <= self._tick:
             raise ValueError(f"tick: expected > {self._tick}, got {tick}")
         self._tick = int(tick)
         self._y = np.asarray(gyro_B_rad_s, dtype=float).reshape(3)
+        if not fresh and self._pred is not None:
+            self._y = np.array(self._pred.omega_calc_B_rad_s, dtype=float).reshape(3)
+        self._fresh = bool(fresh)
+        self._evidence = bool(fresh and evidence)
         self._det: Detection | None = None
 
     def stage_observer(self) -> None:
@@ -211,6 +225,24 @@ class FlightSoftware:
         w_hat = self._obs.omega_hat_B_rad_s
         pred = self._pred
         avail = self.fdir.available
+        if pred is not None and not self._evidence:
+            # Not evidence (begin): skip every evidence update of this tick.
+            self._omega_pred = pred.omega_calc_B_rad_s
+            self.gyro_check.skip(self._y)
+            self._held = None
+            self._det_out = self.detector.skip(w_hat - self._omega_pred)
+            self._w_prev = w_hat.copy()
+            self.model.resync(w_hat)
+            if self.kalman is not None:
+                if self._fresh:  # the burns it would be told of did not happen: restart
+                    self.kalman.reset(self._phi_meas, w_hat)
+                else:  # a propagated sample agrees with the model: keep the filter going
+                    burn_dw = self.arrays.mu_B_rad_s2.T @ (self.effectiveness.k * pred.burn_s)
+                    on_axis = np.abs(self.detector.e_B[pred.burning]).max(axis=0,
+                                                                          initial=0.0) > 0.1
+                    self.kalman.update(self._phi_meas, burn_dw, pred.dangle_thr_B_rad, ~on_axis)
+            self._det = None
+            return
         if pred is None:
             self._omega_pred = w_hat.copy()
             self.gyro_check.step(self._y, np.zeros(3), 0.0)

@@ -38,7 +38,7 @@ FAULT_KIND_FROM_BUS = {
     FaultKind.GYRO_BIAS_STEP: "gyro_bias_step", FaultKind.GYRO_FROZEN: "gyro_frozen",
     FaultKind.GYRO_NOISE: "gyro_noise", FaultKind.BUS_DROP: "bus_drop",
     FaultKind.BUS_DELAY: "bus_delay", FaultKind.BUS_CORRUPT: "bus_corrupt",
-    FaultKind.NODE_SILENT: "node_silent",
+    FaultKind.NODE_SILENT: "node_silent", FaultKind.BUS_BABBLE: "bus_babble",
 }
 FAULT_KIND_TO_BUS = {name: kind for kind, name in FAULT_KIND_FROM_BUS.items()}
 # A panel-injected gyro fault's magnitude (FAULT_CMD carries none), rad/s.
@@ -114,7 +114,30 @@ def fault_cmd_inject(request_id: int, kind: str, thruster_index: int | None, fra
                     fraction, start_s, clear_s)
 
 
-def fault_spec(cmd: FaultCmd, thruster_names: Sequence[str], now_s: float) -> FaultSpec:
+# A panel bus_babble's rate is FAULT_CMD.fraction times this (fraction's range is 0..1).
+PANEL_BABBLE_FULL_HZ = 20_000.0
+
+
+def _bus_fields(cmd: FaultCmd, kind: str) -> dict:
+    """FaultSpec fields of a bus FAULT_CMD: ``fraction`` is the probability (bus_delay: the
+    delay in seconds, bus_babble: the rate over PANEL_BABBLE_FULL_HZ), ``message`` an index
+    into ``bus.faults.MESSAGE_NAMES`` (0: every frame)."""
+    from bus.faults import MESSAGE_NAMES
+
+    if not 0 <= cmd.message <= len(MESSAGE_NAMES):
+        raise ValueError(f"fault: message: expected 0..{len(MESSAGE_NAMES)}, got {cmd.message}")
+    out: dict = {"message": MESSAGE_NAMES[cmd.message - 1] if cmd.message else None}
+    if kind == "bus_delay":
+        out["delay_ms"] = cmd.fraction * 1e3
+    elif kind == "bus_babble":
+        out["rate_hz"] = max(cmd.fraction * PANEL_BABBLE_FULL_HZ, 1.0)
+    elif kind != "node_silent":
+        out["probability"] = cmd.fraction
+    return out
+
+
+def fault_spec(cmd: FaultCmd, thruster_names: Sequence[str], now_s: float,
+               node: str | None = None) -> FaultSpec:
     """The ``FaultSpec`` of an injecting FAULT_CMD (its kind known, its thruster index valid),
     starting no earlier than ``now_s`` (plant time). Raises ``ValueError`` (pydantic) when the
     fields do not make a valid fault."""
@@ -122,9 +145,11 @@ def fault_spec(cmd: FaultCmd, thruster_names: Sequence[str], now_s: float) -> Fa
     return FaultSpec(
         kind=kind, t_s=max(cmd.start_time_s, now_s),
         clear_t_s=cmd.clear_time_s,
-        thruster=None if cmd.thruster is None else thruster_names[cmd.thruster],
+        thruster=None if cmd.thruster is None or node is not None
+        else thruster_names[cmd.thruster],
         fraction=cmd.fraction if kind in ("stuck_on", "degraded") else None,
+        **(_bus_fields(cmd, kind) if node is not None else {}),
         magnitude_rad_s=PANEL_GYRO_MAGNITUDE_RAD_S
         if kind.startswith("gyro") and kind != "gyro_frozen" else None,
-        node="flight" if kind.startswith("bus") or kind == "node_silent" else None,
+        node=node or ("flight" if kind.startswith("bus") or kind == "node_silent" else None),
     )

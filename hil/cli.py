@@ -27,6 +27,7 @@ COMMAND_MODULES = (
     "hil.run",
     "hil.panel",
     "hil.console",
+    "hil.flood",
     "hil.runall",
     "hil.report",
     "hil.bench",

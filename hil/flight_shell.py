@@ -14,16 +14,26 @@ from pathlib import Path
 
 import numpy as np
 
-from bus.catalog import ON_QUANTUM_MS, NodeState
+from bus.catalog import ON_QUANTUM_MS, FaultAction, GyroStatus, NodeState
 from bus.catalog import Node as NodeId
-from bus.codec import FlightTiming, Gyro, ThrCmd
+from bus.codec import FaultCmd, FlightTiming, Gyro, ThrCmd
 from bus.protocol import FlightLockstep, HeartbeatSender, TickRequest
 from bus.transport import Port
 from common.units import DEG
-from hil.binding import command_quanta, fdir_status, manifold_mask
+from hil.binding import FAULT_KIND_FROM_BUS, command_quanta, fault_spec, fdir_status, manifold_mask
 from hil.config import Scenario
 from hil.node_settings import NodeSettings
-from hil.node_shell import Stop, first_record, named_values, say, write_record, xyz_values
+from hil.node_shell import (
+    BUS_FAULT_KINDS,
+    Stop,
+    attach_bus_faults,
+    bus_fault_fields,
+    first_record,
+    named_values,
+    say,
+    write_record,
+    xyz_values,
+)
 from hil.recorder import JsonlWriter
 from hil.records import (
     FlightRecord,
@@ -71,6 +81,10 @@ class FlightShell:
         self.fdir_before = self.fdir_view = None  # hil.records.fdir_view, last tick's and now
         self.fdir_actions: list = []
         self.thr_cmd_on_ms = 0  # what the tick's THR_CMD carried, for the record
+        self.bus_faults = attach_bus_faults(port, sc, "flight")
+        self.bus_new: list[dict] = []  # bus faults newly active, for the next record
+        self.last_bus_fault_cmd: FaultCmd | None = None
+        self.no_evidence = 0  # ticks kept out of the detector's evidence (docs/hostile-bus.md)
         self.first = first_record(sc, settings, {"gyro_lost_ticks": self.safety.gyro_lost_ticks})
         self.events.extend(self.first.pop("events"))
         if settings.mode == "realtime":
@@ -99,7 +113,9 @@ class FlightShell:
         """
         fs, clk = self.fs, time.perf_counter_ns
         t_start = clk()
-        change = self.gyro_watch.tick(self.gyro is not None and self.gyro_fresh)
+        self.bus_new += bus_fault_fields(self, n * self.h)
+        fresh = self.gyro is not None and self.gyro_fresh
+        change = self.gyro_watch.tick(fresh)
         if change == "lost":
             self.safe = True
             fs.peer_lost()
@@ -113,9 +129,14 @@ class FlightShell:
             say("flight", self.events[-1])
         omega = np.zeros(3) if self.gyro is None else np.asarray(self.gyro.omega_B_rad_s)
         self.gyro_fresh = False
+        # The plant says in the sample whether it applied our last command; a tick without a
+        # fresh sample propagates; neither kind of tick is evidence about the thrusters.
+        applied = self.gyro is None or not self.gyro.status & GyroStatus.CMD_NOT_APPLIED
+        if not (fresh and applied):
+            self.no_evidence += 1
         stage_ns = {}
         t0 = clk()
-        fs.begin(n, omega)
+        fs.begin(n, omega, fresh=fresh, evidence=applied)
         t1 = clk()
         stage_ns["gyro_in"] = t1 - t0
         for name in fs.STAGES:
@@ -194,9 +215,12 @@ class FlightShell:
             "thr_cmd_on_ms": self.thr_cmd_on_ms,
             "bus": self.port.counts(),
             "fdir": self.fdir_view,
+            "no_evidence_ticks": self.no_evidence,
         }
         if self.fdir_actions:
             rec["fdir_actions"] = self.fdir_actions
+        if self.bus_new:
+            rec["faults_injected"], self.bus_new = self.bus_new, []
         if rt is not None:
             # Real time only: lockstep records stay identical run to run (bit for bit).
             rec.update(rt)
@@ -211,9 +235,31 @@ class FlightShell:
         for msg, rx in msgs:
             if isinstance(msg, Gyro):
                 self.gyro, self.gyro_fresh = msg, True
+            elif isinstance(msg, FaultCmd):
+                self.on_fault_cmd(msg)
             if self.lock is not None:
                 evs.extend(self.lock.on_message(msg, rx))
         return evs
+
+    def on_fault_cmd(self, m: FaultCmd) -> None:
+        """A panel FAULT_CMD: the flight applies the bus faults addressed to its own node
+        (``thruster`` = node id; the plant acknowledges, ``PlantShell.on_bus_fault_cmd``) and
+        ignores the rest. A resend of the same request is not applied twice."""
+        kind = FAULT_KIND_FROM_BUS.get(m.kind)
+        if kind not in BUS_FAULT_KINDS or m.thruster != NodeId.FLIGHT or \
+                m == self.last_bus_fault_cmd:
+            return
+        self.last_bus_fault_cmd = m
+        t_s = self.bus_faults.t_s
+        if m.action == FaultAction.CLEAR:
+            self.bus_faults.clear(kind, t_s)
+            return
+        try:
+            self.bus_faults.add(fault_spec(m, self.names, t_s, node="flight"))
+        except ValueError as exc:
+            self.events.append(f"bus fault command refused: {exc}")
+        self.events.append(f"bus fault injected by panel: {kind} on flight "
+                           f"(request {m.request_id})")
 
     def run_lockstep(self, stop: Stop) -> int:
         self.lock = FlightLockstep()
@@ -295,6 +341,7 @@ class FlightShell:
                 time.monotonic_ns, release_ns + wait_ns)
             waited = time.monotonic_ns() - start
             if not got:
+                self.gyro_fresh = False  # the tick's own sample is late: propagate
                 self.late_gyro += 1
                 self.events.append(f"late gyro: tick {n} expected sample "
                                    f"{grid.expected_seq(n)}, newest {newest()} after "

@@ -42,6 +42,7 @@ class NodeSettings:
     bus_log: bool = False
     telemetry_url: str | None = None
     start_after: str | None = None
+    key_file: str | None = None
     sched_note: str | None = None
     rt_event: str | None = None
 
@@ -116,6 +117,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--telemetry-url", metavar="URL",
                    help="publish each tick's record on LCM at URL (HIL_TRUTH from the plant, "
                         "HIL_FLIGHT_VIEW from the flight; docs/lcm.md)")
+    p.add_argument("--key-file", metavar="FILE",
+                   help="SecOC key (mode 0600, made by hil run / hil up): THR_CMD and "
+                        "FAULT_CMD are signed and checked (docs/hostile-bus.md); without "
+                        "it they are not")
     p.add_argument("--start-after", metavar="FILE",
                    help="set up, then wait until FILE exists before the first tick (hil run "
                         "starts both processes at once and gives the plant the flight's "

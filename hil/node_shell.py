@@ -8,14 +8,19 @@ import signal
 from dataclasses import replace
 from pathlib import Path
 
-from bus.catalog import CATALOG, Catalog
+from bus.catalog import CATALOG, Catalog, Node
+from bus.faults import KINDS as BUS_FAULT_KINDS
+from bus.faults import SendFaults
 from bus.receiver import Receiver
-from bus.transport import BusConfig, BusLogger, Port, open_bus
+from bus.transport import BusConfig, BusLogger, Port, node_filters, open_bus
 from hil.config import Scenario, resolve_vehicle_path
 from hil.node_settings import NodeSettings
 from hil.process_policy import idle_gc
 
 XYZ = ("x", "y", "z")
+# Frames one poll takes from the socket at most (bus.transport.Port): a flood waits in the
+# kernel's queue instead of holding a tick; nominal traffic is a few frames per poll.
+MAX_FRAMES_PER_POLL = 32
 
 
 def round6(x: float | None) -> float | None:
@@ -62,20 +67,53 @@ def lockstep_receiver(reply_timeout_s: float) -> Receiver:
 
 
 def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
-    """The node's port: CAN, or LCM for interface ``lcm`` (``bus.lcm_transport.LcmPort``).
-
-    Lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log`` when
-    ``settings.bus_log``."""
+    """The node's port: CAN, or LCM for interface ``lcm`` (``bus.lcm_transport.LcmPort``)
+    (lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log`` when
+    ``settings.bus_log``). On CAN: receive filters from the catalog (only the identifiers the
+    node consumes; in the kernel on SocketCAN) and at most ``MAX_FRAMES_PER_POLL`` frames per
+    poll. With a key file, THR_CMD and FAULT_CMD are signed and checked on either bus."""
     s = settings
     receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
     if s.interface == "lcm":  # LCM: the channel is the provider URL (docs/lcm.md)
         from bus.lcm_transport import LcmPort
 
         logger = BusLogger(out / f"{name}.bus.log", channel="lcm") if s.bus_log else None
-        return LcmPort(s.channel, receiver=receiver, logger=logger)
-    cfg = BusConfig(interface=s.interface, channel=s.channel)
-    logger = BusLogger(out / f"{name}.bus.log", channel=s.channel) if s.bus_log else None
-    return Port(open_bus(cfg), receiver=receiver, logger=logger)
+        port = LcmPort(s.channel, receiver=receiver, logger=logger)
+    else:
+        cfg = BusConfig(interface=s.interface, channel=s.channel,
+                        kwargs={"can_filters": node_filters(Node[name.upper()])})
+        logger = BusLogger(out / f"{name}.bus.log", channel=s.channel) if s.bus_log else None
+        port = Port(open_bus(cfg), receiver=receiver, logger=logger,
+                    max_frames_per_poll=MAX_FRAMES_PER_POLL)
+    if s.key_file is not None:
+        from bus.secoc import Authenticator
+        from hil.secoc_key import read_key
+
+        port.auth = Authenticator(read_key(s.key_file))
+    return port
+
+
+def attach_bus_faults(port: Port, sc: Scenario, node: str) -> SendFaults:
+    """The node's send-path bus faults (``bus.faults``), seeded from the scenario's seed, with
+    the scenario's bus faults of this node; set as the port's send hook (the panel adds and
+    clears faults on it live)."""
+    faults = SendFaults(sc.cfg.seed, node, clock=port.now_s)
+    for f in sc.cfg.faults:
+        if f.kind in BUS_FAULT_KINDS and f.node == node:
+            faults.add(f)
+    port.send_hook = faults
+    return faults
+
+
+def bus_fault_fields(shell, t_s: float) -> list[dict]:
+    """This tick's newly active bus faults of the shell's node (``faults_injected``
+    entries); their events go to the shell's events."""
+    bf: SendFaults = shell.bus_faults
+    bf.t_s = t_s
+    new = bf.newly_active()
+    shell.events.extend(bf.events)
+    bf.events.clear()
+    return new
 
 
 def say(name: str, text: str) -> None:
@@ -90,7 +128,9 @@ def node_config(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
     return {"scenario": sc.cfg.name, "vehicle": sc.vehicle.name,
             "vehicle_file": str(vfile.resolve()),
             "thrusters": [t.name for t in sc.vehicle.thrusters], "mode": settings.mode,
-            "bus": f"{settings.interface} {settings.channel}", "safety": safety}
+            "bus": f"{settings.interface} {settings.channel}", "safety": safety,
+            # THR_CMD and FAULT_CMD authenticated (bus.secoc): only with --key-file
+            "secoc": settings.key_file is not None}
 
 
 def first_record(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
@@ -109,6 +149,10 @@ def write_record(shell, rec: dict) -> None:
     if shell.first:
         rec.update(shell.first)
         shell.first = {}
+    auth = getattr(shell.port, "auth", None)
+    if auth is not None and auth.events:  # authentication failures (bus.secoc)
+        rec["events"] = [*rec.get("events", []), *auth.events]
+        auth.events.clear()
     shell.rec.write(rec)
     telemetry = getattr(shell, "telemetry", None)
     if telemetry is not None and not rec.get("final"):

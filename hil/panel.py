@@ -28,16 +28,57 @@ import sys
 import time
 from pathlib import Path
 
-from bus.catalog import AckReason, AckStatus, FaultAction, FaultKind
+from bus.catalog import AckReason, AckStatus, FaultAction, FaultKind, Node
 from bus.codec import FaultAck, FaultCmd
+from bus.faults import MESSAGE_NAMES
 from hil.argtypes import number
-from hil.binding import fault_cmd_inject
+from hil.binding import FAULT_KIND_TO_BUS, PANEL_BABBLE_FULL_HZ, fault_cmd_inject
 from hil.config import MAX_DURATION_S, THRUSTER_FAULTS, VehicleCfg, load_vehicle
 from hil.errors import BusError, FaultCommandError, UsageError
 from hil.recorder import read_jsonl
+from hil.secoc_key import KEY_FILE, read_key
 from hil.summary import apply_clear
 
-TYPES = THRUSTER_FAULTS  # what the panel injects (gyro and bus faults come from scenarios)
+BUS_TYPES = ("bus_drop", "bus_delay", "bus_corrupt", "bus_babble", "node_silent")
+TYPES = THRUSTER_FAULTS + BUS_TYPES  # what the panel injects (gyro faults: scenarios)
+
+
+def build_bus_command(action: str, kind: str, node: str | None, probability: float | None,
+                      delay_ms: float | None, rate_hz: float | None, message: str | None,
+                      at_s: float | None, clear_at_s: float | None,
+                      request_id: int) -> FaultCmd:
+    """FAULT_CMD of a bus fault on ``node``'s send path (``bus.faults``): the node id in
+    ``thruster``, the probability (bus_delay: the delay in s, bus_babble: rate / 20 kHz) in
+    ``fraction``, the message index in ``message``. Checked before anything is sent."""
+    if node not in ("plant", "flight"):
+        raise FaultCommandError(f"fault: --node: expected 'plant' or 'flight' for {kind}, "
+                                f"got {node!r}")
+    msg = 0
+    if message is not None:
+        if message not in MESSAGE_NAMES:
+            raise FaultCommandError(f"fault: --message: expected one of {list(MESSAGE_NAMES)}, "
+                                    f"got {message!r}")
+        msg = MESSAGE_NAMES.index(message) + 1
+    nid = int(Node[node.upper()])
+    if action == "clear":
+        return FaultCmd(request_id, FaultAction.CLEAR, FAULT_KIND_TO_BUS[kind], nid)
+    if kind == "bus_delay":
+        if delay_ms is None or not 0 < delay_ms <= 1000:
+            raise FaultCommandError(f"fault: --delay-ms: expected a delay in (0, 1000] ms, got "
+                                    f"{delay_ms}")
+        value = delay_ms / 1e3
+    elif kind == "bus_babble":
+        rate = 1000.0 if rate_hz is None else rate_hz
+        if not 1 <= rate <= PANEL_BABBLE_FULL_HZ:
+            raise FaultCommandError(f"fault: --rate-hz: expected 1..{PANEL_BABBLE_FULL_HZ:g}, "
+                                    f"got {rate}")
+        value = rate / PANEL_BABBLE_FULL_HZ
+    else:
+        value = 1.0 if probability is None else probability
+    if at_s is not None and clear_at_s is not None and clear_at_s <= at_s:
+        raise FaultCommandError(f"fault: --clear-at: expected a time after --at, got {clear_at_s}")
+    return FaultCmd(request_id, FaultAction.INJECT, FAULT_KIND_TO_BUS[kind], nid, value,
+                    at_s or 0.0, clear_at_s, msg)
 
 
 def build_command(vehicle: str | VehicleCfg, action: str, thruster: str | None,
@@ -76,7 +117,8 @@ def build_command(vehicle: str | VehicleCfg, action: str, thruster: str | None,
 RESEND_S = 0.25  # no FAULT_ACK after this long: send the request again (see send_and_wait)
 
 
-def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float) -> FaultAck:
+def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float,
+                  key: bytes | None = None) -> FaultAck:
     """Send ``cmd`` and return the plant's FAULT_ACK; BusError when none comes in time.
 
     Every panel run is a new process whose E2E alive counters start at 0, so the plant's
@@ -85,14 +127,19 @@ def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float)
     the next counter, which the receiver takes; the plant acknowledges a repeated request
     again without applying it twice (``hil.nodes.PlantShell.on_fault_cmd``).
     """
-    from bus.transport import BusConfig, Port, open_bus
+    from bus.transport import BusConfig, Port, node_filters, open_bus
 
     if interface == "lcm":  # the channel is the LCM URL (docs/lcm.md)
         from bus.lcm_transport import LcmPort
 
         port: Port = LcmPort(channel)
     else:
-        port = Port(open_bus(BusConfig(interface=interface, channel=channel)))
+        port = Port(open_bus(BusConfig(interface=interface, channel=channel,
+                                       kwargs={"can_filters": node_filters(Node.PANEL)})))
+    if key is not None:  # the running system checks FAULT_CMD's authenticator (bus.secoc)
+        from bus.secoc import Authenticator
+
+        port.auth = Authenticator(key)
     try:
         port.send(cmd)
         now = time.monotonic()
@@ -104,21 +151,24 @@ def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float)
             if time.monotonic() >= t_resend:
                 port.send(cmd)
                 t_resend += RESEND_S
+        hint = "" if key is not None else " (and given its key, --key-file?)"
         raise BusError(f"fault: no FAULT_ACK for request {cmd.request_id} within "
-                       f"{timeout_s:g} s: is the plant running on {interface} {channel}?")
+                       f"{timeout_s:g} s: is the plant running on {interface} {channel}"
+                       f"{hint}?")
     finally:
         port.close()
 
 
 def deliver(cmd: FaultCmd, run: Path, via: str, interface: str, channel: str,
-            timeout_s: float) -> FaultAck:
+            timeout_s: float, key: bytes | None = None) -> FaultAck:
     """Send ``cmd`` by the path ``via`` names (auto: the run folder's live panel bridge when
-    there is one, else the bus) and return the plant's FAULT_ACK (BusError when none)."""
+    there is one, else the bus) and return the plant's FAULT_ACK (BusError when none). The
+    bridge signs with the run's own key (it runs beside the plant, ``hil.panel_server``)."""
     from hil.panel_bridge import bridge_info, send_via_run
 
     if via == "run" or (via == "auto" and bridge_info(run) is not None):
         return send_via_run(cmd, run, timeout_s)
-    return send_and_wait(cmd, interface, channel, timeout_s)
+    return send_and_wait(cmd, interface, channel, timeout_s, key)
 
 
 def _request_id() -> int:
@@ -182,12 +232,20 @@ def _cmd(args) -> int:
     vehicle, source = resolve_vehicle(args.vehicle, run)
     if args.action == "list":
         return _list(vehicle, source, run)
-    cmd = build_command(vehicle, args.action, args.thruster, args.type, args.fraction,
-                        args.at, args.clear_at, _request_id())
+    if args.type in BUS_TYPES:
+        cmd = build_bus_command(args.action, args.type, args.node, args.fraction, args.delay_ms,
+                                args.rate_hz, args.message, args.at, args.clear_at,
+                                _request_id())
+        args.thruster = args.node
+    else:
+        cmd = build_command(vehicle, args.action, args.thruster, args.type, args.fraction,
+                            args.at, args.clear_at, _request_id())
     late = past_start_warning(args.at, run)
     if late:
         print(late, file=sys.stderr)
-    ack = deliver(cmd, run, args.via, args.interface, args.channel, args.timeout)
+    key_file = args.key_file or (run / KEY_FILE if (run / KEY_FILE).exists() else None)
+    key = None if key_file is None else read_key(key_file)
+    ack = deliver(cmd, run, args.via, args.interface, args.channel, args.timeout, key)
     print(ack_line(ack, args.action, args.type, args.thruster, vehicle.name))
     return 0 if ack.status == AckStatus.ACCEPTED else 1
 
@@ -274,7 +332,14 @@ exit codes: 0 the plant accepted (FAULT_ACK), 1 it rejected (the reason is print
     p.add_argument("--thruster", help="thruster name (see `hil fault list`)")
     p.add_argument("--type", choices=list(TYPES), help="fault type (inject)")
     p.add_argument("--fraction", type=number(ge=0, le=1),
-                   help="stuck_on: residual thrust; degraded: remaining thrust (0..1)")
+                   help="stuck_on: residual thrust; degraded: remaining thrust; bus_drop, "
+                        "bus_corrupt: probability per frame (0..1)")
+    p.add_argument("--node", choices=("plant", "flight"),
+                   help="bus faults: the node whose send path gets the fault")
+    p.add_argument("--message", help="bus faults: only this message's frames (e.g. GYRO)")
+    p.add_argument("--delay-ms", type=number(gt=0, le=1000), help="bus_delay: the delay [ms]")
+    p.add_argument("--rate-hz", type=number(ge=1, le=20000),
+                   help="bus_babble: frames per second (default 1000)")
     p.add_argument("--at", type=number(ge=0, le=MAX_DURATION_S),
                    help="plant time [s] to start (default: now)")
     p.add_argument("--clear-at", type=number(ge=0, le=MAX_DURATION_S),
@@ -292,6 +357,8 @@ exit codes: 0 the plant accepted (FAULT_ACK), 1 it rejected (the reason is print
                         "--run (hil up runs one; it works into user-mode Linux), bus = "
                         "directly on --interface/--channel, auto (default) = run when --run has "
                         "a live bridge, else bus")
+    p.add_argument("--key-file", help="the run's SecOC key (default RUN/secoc.key, made by "
+                                      "hil run / hil up)")
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")
     p.add_argument("--bus", choices=("can", "lcm"), default="can",

@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 from pathlib import Path
 
 from hil.node_shell import Stop
 from hil.panel import send_and_wait
 from hil.panel_bridge import serve
+from hil.secoc_key import KEY_FILE, read_key
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -21,7 +23,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")
     a = p.parse_args(argv)
-    return serve(Path(a.run), a.interface, a.channel, Stop(), send_and_wait,
+    run = Path(a.run)
+    # The run's SecOC key (hil run / hil up write it before the nodes start): the bridge signs
+    # FAULT_CMD as the panel on the host would.
+    key = read_key(run / KEY_FILE) if (run / KEY_FILE).exists() else None
+    return serve(run, a.interface, a.channel, Stop(), partial(send_and_wait, key=key),
                  log=lambda text: print(text, flush=True))
 
 

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
-from bus.catalog import CATALOG, AckReason, AckStatus, FaultAction, NodeState
+from bus.catalog import CATALOG, AckReason, AckStatus, FaultAction, GyroStatus, NodeState
 from bus.catalog import Node as NodeId
 from bus.codec import FaultAck, FaultCmd, Gyro, ThrCmd
 from bus.protocol import CommandLost, DeadlineMissed, HeartbeatSender, PlantLockstep
@@ -24,7 +25,18 @@ from hil.binding import FAULT_KIND_FROM_BUS, fault_spec, gyro_message, plant_com
 from hil.config import Scenario
 from hil.errors import FaultCommandError
 from hil.node_settings import NodeSettings
-from hil.node_shell import Stop, first_record, named_values, round6, say, write_record, xyz_values
+from hil.node_shell import (
+    BUS_FAULT_KINDS,
+    Stop,
+    attach_bus_faults,
+    bus_fault_fields,
+    first_record,
+    named_values,
+    round6,
+    say,
+    write_record,
+    xyz_values,
+)
 from hil.recorder import JsonlWriter
 from hil.records import PlantRecord, newly_active_faults, truth_fields
 from hil.safe_states import CommandGate, FlightLinkWatch, safety_settings
@@ -53,9 +65,16 @@ class PlantShell:
         self.n_thr, self.n_man = len(self.names), len(self.plant.arrays.manifolds)
         self.all_open = (1 << self.n_man) - 1
         for f in sc.cfg.faults:
-            if f.kind.startswith("bus_") or f.kind == "node_silent":
-                continue  # bus faults act in the shells' send paths, not in the physics
+            if f.kind in BUS_FAULT_KINDS:
+                continue  # bus faults act in the shells' send paths (bus.faults), not in physics
             self.plant.inject(f)
+        self.bus_faults = attach_bus_faults(port, sc, "plant")
+        self.bus_new: list[dict] = []  # bus faults that became active since the last record
+        # Whether the flight's last command was applied as sent; the next GYRO says so
+        # (GyroStatus.CMD_NOT_APPLIED) and the flight keeps that tick out of its evidence.
+        self.cmd_applied = True
+        self.last_applied: ThrCmd | None = None
+        self.held_ticks = 0  # ticks in a row the last command was repeated (thr_cmd_missing hold)
         self.rec = JsonlWriter(out / "plant.jsonl")
         self.events: list[str] = []
         self.reported_faults: set[int] = set()
@@ -71,7 +90,8 @@ class PlantShell:
         self.last_fault: tuple[FaultCmd, float, FaultAck] | None = None  # for repeats
         self.first = first_record(sc, settings, {
             "thr_cmd_lost_ticks": self.safety.thr_cmd_lost_ticks,
-            "heartbeat_lost_s": self.safety.heartbeat_lost_s})
+            "heartbeat_lost_s": self.safety.heartbeat_lost_s,
+            "thr_cmd_missing": self.safety.thr_cmd_missing})
         self.events.extend(self.first.pop("events"))
 
     # -- faults from the panel ------------------------------------------------------------
@@ -87,7 +107,9 @@ class PlantShell:
             return
         reason, status = AckReason.NONE, AckStatus.ACCEPTED
         try:
-            if m.action == FaultAction.CLEAR:
+            if FAULT_KIND_FROM_BUS.get(m.kind) in BUS_FAULT_KINDS:
+                status, reason = self.on_bus_fault_cmd(m)
+            elif m.action == FaultAction.CLEAR:
                 thr = None if m.thruster is None else self.names[m.thruster]
                 changed = self.plant.clear_faults(thr)
                 if not changed:
@@ -116,6 +138,25 @@ class PlantShell:
         self.last_fault = (m, now, ack)
         self.port.send(ack)
 
+    def on_bus_fault_cmd(self, m: FaultCmd) -> tuple[AckStatus, AckReason]:
+        """A bus fault from the panel: ``thruster`` carries the node id. The plant's own go
+        on its send path; the flight's are the flight's to apply (it hears FAULT_CMD too,
+        ``hil.flight_shell``), the plant acknowledges that the command was valid."""
+        kind = FAULT_KIND_FROM_BUS[m.kind]
+        node = {NodeId.PLANT: "plant", NodeId.FLIGHT: "flight"}.get(m.thruster)
+        if node is None:
+            return AckStatus.REJECTED, AckReason.BAD_THRUSTER
+        if node == "plant":
+            if m.action == FaultAction.CLEAR:
+                if not self.bus_faults.clear(kind, self.plant.t):
+                    return AckStatus.REJECTED, AckReason.NOT_ACTIVE
+            else:
+                spec = fault_spec(m, self.names, self.plant.t, node="plant")
+                self.bus_faults.add(spec)
+        self.events.append(f"bus fault {'cleared' if m.action == FaultAction.CLEAR else 'injected'}"
+                           f" by panel: {kind} on {node} (request {m.request_id})")
+        return AckStatus.ACCEPTED, AckReason.NONE
+
     # -- gyro and commands ------------------------------------------------------------------
 
     def gyro_messages(self, samples, t_pub_s: float | None = None) -> list[Gyro]:
@@ -128,6 +169,8 @@ class PlantShell:
             if t_pub_s is not None:
                 self.gyro_pub[seq] = t_pub_s
             g = gyro_message(s)
+            if not self.cmd_applied:
+                g = replace(g, status=g.status | GyroStatus.CMD_NOT_APPLIED)
             self.last_gyro = g
             out.append(g)
         if len(self.gyro_time) > 4096:
@@ -144,6 +187,7 @@ class PlantShell:
             return
         self.plant.apply_command(cmd.tick, t_apply_s, on_ms, mask)
         self.last_cmd_tick_s = t_apply_s
+        self.last_applied = cmd
 
     def dropped_command(self, cmd: ThrCmd, verdict: str, rx_s: float,
                         t_sample_s: float | None) -> None:
@@ -172,6 +216,8 @@ class PlantShell:
         n_err = error_quaternion(self.target, tr.q_BO)
         att = small_angle_vector(n_err) * DEG
         injected = newly_active_faults(self.plant.faults.entries, self.reported_faults, tr.t_s)
+        injected = injected + self.bus_new
+        self.bus_new = []
         for f in injected:
             self.events.append(f"fault active: {f['type']} {f['thruster'] or ''} "
                                f"at {f['t_s']:.2f} s")
@@ -217,6 +263,7 @@ class PlantShell:
                 break
             t_n = n * self.h
             self.plant.advance_to(t_n)
+            self.bus_new += bus_fault_fields(self, t_n)
             # The newest sample measured by t_n is this tick's (the tick's sensor read).
             ready = self.plant.gyro_samples_until(t_n)
             # GYRO and SYNC in one send: the flight wakes once per tick, not twice.
@@ -240,6 +287,7 @@ class PlantShell:
                                            f"({ev.consecutive} in a row)")
             res = lock.result
             good_in_a_row = good_in_a_row + 1 if res is not None and not res.safe else 0
+            self.cmd_applied = False
             if res is not None and not res.safe:
                 if self.safe and good_in_a_row >= self.safety.recover_ticks:
                     self.safe = False
@@ -247,14 +295,28 @@ class PlantShell:
                                        f"({good_in_a_row} ticks in a row)")
                 if not self.safe:
                     self.apply(res.command, self.plant.apply_time(t_n))
+                    self.cmd_applied = True
+                    self.held_ticks = 0
             elif res is not None and not self.safe:
-                self.apply(res.command, self.plant.apply_time(t_n))
+                self.apply(self.missing_command(n, res.command), self.plant.apply_time(t_n))
             self.plant.advance_to(t_n + self.h)
             extra = {"rt_factor": round((t_n + self.h) / max(time.monotonic() - t_wall0, 1e-9), 2),
                      "sync_to_cmd_s": latency, "deadline_misses": lock.deadline_misses}
             self.record(n, extra)
         self.record_end(time.monotonic() - t_wall0, n_ticks, time.process_time() - cpu0, t_wall0)
         return 0
+
+    def missing_command(self, tick: int, safe_cmd: ThrCmd) -> ThrCmd:
+        """What the plant applies for a tick whose THR_CMD is missing (``safety.
+        thr_cmd_missing``): ``zero``: ``safe_cmd`` (nothing fires); ``hold``: the last command
+        applied again, under the tick's number (until ``thr_cmd_lost_ticks`` make it safe)."""
+        last = self.last_applied
+        if self.safety.thr_cmd_missing != "hold" or last is None:
+            return safe_cmd
+        self.held_ticks += 1
+        self.events.append(f"THR_CMD of tick {tick} missing: holding the command of tick "
+                           f"{last.tick} ({self.held_ticks} in a row)")
+        return replace(last, tick=tick)
 
     # -- real time ------------------------------------------------------------------------
 
@@ -290,6 +352,16 @@ class PlantShell:
             if now >= duration:
                 break
             self.plant.advance_to(now)
+            self.bus_new += bus_fault_fields(self, now)
+            # A command applied within the last tick (and its deadline) is the one in force.
+            self.cmd_applied = not self.safe and now - self.last_cmd_tick_s <= \
+                self.h + THR_CMD_DEADLINE_S
+            if not self.cmd_applied and not self.safe and self.last_applied is not None and \
+                    self.safety.thr_cmd_missing == "hold" and \
+                    self.held_ticks < self.safety.thr_cmd_lost_ticks - 1 and \
+                    now - self.last_cmd_tick_s >= self.h + THR_CMD_DEADLINE_S:
+                held = self.missing_command(self.last_applied.tick + 1, self.last_applied)
+                self.apply(held, now + cmd_latency)
             # Publish first: the flight is waiting for this sample.
             ready = self.plant.gyro_samples_until(now)
             if ready:
@@ -331,6 +403,7 @@ class PlantShell:
                                            f"({gate.run_length} fresh ticks in a row)")
                     if not self.safe:
                         self.apply(msg, t_apply)
+                        self.held_ticks = 0
                     if t_meas is not None:
                         s2a.append(t_apply - t_meas)
                         chain.append({"tick": msg.tick, "gyro_seq": msg.gyro_seq,

@@ -30,6 +30,8 @@ class FaultEvent(TypedDict):
     type: str
     fraction: float
     clear_t_s: float | None
+    node: NotRequired[str]  # bus faults: the node whose send path has it
+    message: NotRequired[str | None]  # bus faults: the message it is limited to (None: all)
 
 
 class DetectionRecord(TypedDict):
@@ -97,6 +99,10 @@ class FlightRecord(TypedDict):
     # this tick (``fdir_actions``: manifolds closed, thrusters dropped, given back).
     fdir: NotRequired[dict[str, Any]]
     fdir_actions: NotRequired[list[dict[str, Any]]]
+    # ticks so far the detector took no evidence from (no fresh gyro sample, or the plant
+    # did not apply the last command); bus faults of the flight's send path that started
+    no_evidence_ticks: NotRequired[int]
+    faults_injected: NotRequired[list[FaultEvent]]
 
 
 def fdir_view(out, names: Sequence[str], manifold_names: Sequence[str],

@@ -36,6 +36,7 @@ from hil.config import MAX_DURATION_S, REPO_ROOT, load_scenario
 from hil.errors import BusError, UsageError
 from hil.panel_bridge import control_dir, request_stop, stop_path
 from hil.recorder import RrdRecorder, build_rrd, merge_by_tick, read_jsonl
+from hil.secoc_key import KEY_FILE, new_key_file
 from hil.summary import summarise
 from hil.timing import timing_summary
 from hil.verdict import EXIT_CODES, EXIT_RUN_FAILED
@@ -343,7 +344,7 @@ def _node_cmd(node: str, scenario: Path, out: Path, args,
               start_after: Path | None = None) -> list[str]:
     cmd = [sys.executable, "-m", "hil.nodes", node, "--scenario", str(scenario),
            "--out", str(out), "--mode", args.mode, "--interface", args.interface,
-           "--channel", args.channel]
+           "--channel", args.channel, "--key-file", str(out / KEY_FILE)]
     if start_after is not None:
         cmd += ["--start-after", str(start_after)]
     if getattr(args, "telemetry", None):
@@ -387,6 +388,7 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
                  "flight.ready", "bus.log", "netns.pid"):
         (out / name).unlink(missing_ok=True)
     reset_control(out)  # stale requests or a stop request of an earlier run in this folder
+    new_key_file(out)  # this run's SecOC key (hil.secoc_key), for the nodes and the panel
     monitor = _monitor(args, out / "bus.log", sim_time=args.mode == "lockstep")
     monitor.start()
     logger = _start_lcm_logger(args, out) if getattr(args, "lcm_log", False) else None

@@ -176,6 +176,21 @@ def check_expectations(summary: dict[str, Any], expect: ExpectationsCfg | None) 
     return fails
 
 
+SEEN = ("bad_crc", "wrong_length", "unknown_id", "counter_jump", "repeated_counter",
+        "incomplete_set", "stale", "lost_frames")
+
+
+def bus_fault_counts(plant_bus: dict[str, int], flight_bus: dict[str, int]) -> dict[str, Any]:
+    """Per sending node, what its send path injected (``injected_*`` of its port counts) and
+    what the other node's receiver saw (its reject classes)."""
+    out: dict[str, Any] = {}
+    for node, tx, rx in (("plant", plant_bus, flight_bus), ("flight", flight_bus, plant_bus)):
+        out[node] = {"injected": {k[len("injected_"):]: v for k, v in tx.items()
+                                  if k.startswith("injected_")},
+                     "seen_by_peer": {k: rx[k] for k in SEEN if k in rx}}
+    return out
+
+
 def summarise(
     *,
     scenario: str,
@@ -201,6 +216,9 @@ def summarise(
         faults.extend(dict(f) for f in r.get("faults_injected", []))
         for c in r.get("faults_cleared", []):
             apply_clear(faults, c)
+    for r in flight_records:  # the flight's own bus faults (its send path)
+        faults.extend(dict(f) for f in r.get("faults_injected", []))
+    faults.sort(key=lambda f: f["t_s"])
     detections: list[dict[str, Any]] = []
     for r in flight_records:
         if r.get("detection"):
@@ -220,7 +238,8 @@ def summarise(
         "vehicle": vehicle,
         "mode": mode,
         "faults": [
-            {k: f.get(k) for k in ("t_s", "thruster", "type", "fraction", "clear_t_s")}
+            {k: f.get(k) for k in ("t_s", "thruster", "type", "fraction", "clear_t_s")
+             + (("node", "message") if "node" in f else ())}
             for f in faults
         ],
         "detections": matched,
@@ -235,6 +254,8 @@ def summarise(
         "compute_ms": percentiles_ms(compute),
         "release_jitter_ms": percentiles_ms(jitter) if jitter else None,
         "bus": {"plant": last_plant.get("bus", {}), "flight": last_flight.get("bus", {})},
+        # bus faults: injected by each node's send path, seen by the other node's receiver
+        "bus_faults": bus_fault_counts(last_plant.get("bus", {}), last_flight.get("bus", {})),
         # real time: THR_CMD the plant applied (fresh) or dropped, by class
         "command_gate": next((r["command_gate"] for r in reversed(plant_records)
                               if r.get("command_gate")), None),

@@ -42,6 +42,7 @@ from bus.catalog import (
 from bus.codec import (
     FaultAck,
     FaultCmd,
+    FaultCmdMac,
     FdirStatus,
     FlightTiming,
     Frame,
@@ -49,6 +50,7 @@ from bus.codec import (
     Heartbeat,
     Sync,
     ThrCmd,
+    ThrCmdMac,
     encode,
 )
 from bus.dbc import DBC_PATH
@@ -69,6 +71,8 @@ SAMPLES = {
     "FAULT_CMD": FaultCmd(
         42, FaultAction.INJECT, FaultKind.DEGRADED, 7, 2500 * 1e-4, 1250 * 0.01, 3025 * 0.01
     ),
+    "THR_CMD_MAC": ThrCmdMac(0x92, 4242, 0xA5C3E1),
+    "FAULT_CMD_MAC": FaultCmdMac(42, 0xBEEF, 0x123456),
     "FAULT_ACK": FaultAck(42, AckStatus.REJECTED, AckReason.BAD_FRACTION, FaultKind.DEGRADED),
     "FLIGHT_TIMING": FlightTiming(4242, 12_345 * 1e-6, 3),
     **{f"HEARTBEAT_{n.name}": Heartbeat(n, NodeState.RUN, 1000 + n, 7 * n, 11 * n) for n in Node},

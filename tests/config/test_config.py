@@ -99,7 +99,7 @@ def _scenario(tmp_path: Path, body: dict) -> Path:
         ({"faults": [{"kind": "melted", "t_s": 1.0}]},
          "faults[0].kind: expected one of 'stuck_on', 'fail_to_fire', 'degraded', 'gyro_spike', "
          "'gyro_bias_step', 'gyro_frozen', 'gyro_noise', 'bus_drop', 'bus_delay', "
-         "'bus_corrupt' or 'node_silent', got 'melted'"),
+         "'bus_corrupt', 'node_silent' or 'bus_babble', got 'melted'"),
         ({"faults": [{"kind": "degraded", "t_s": 1.0, "thruster": "X+"}]},
          "faults[0].fraction: expected a thrust fraction in [0, 1] for a degraded fault, got None"),
         ({"faults": [{"kind": "fail_to_fire", "t_s": 5.0, "clear_t_s": 2.0, "thruster": "X+"}]},

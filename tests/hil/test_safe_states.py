@@ -101,16 +101,16 @@ def test_settings_come_from_the_scenario_and_the_node_flags_override(tmp_path) -
     base = _args("plant", scen, tmp_path, "x", "lockstep")
     assert safety_settings(sc, base).model_dump() == {
         "thr_cmd_lost_ticks": 5, "heartbeat_lost_s": 2.5, "gyro_lost_ticks": 4,
-        "recover_ticks": 3}
+        "recover_ticks": 3, "thr_cmd_missing": "zero"}
     over = _args("plant", scen, tmp_path, "x", "lockstep", "--lost-after", "2",
                  "--heartbeat-lost-s", "0.8", "--gyro-lost-after", "6")
     assert safety_settings(sc, over).model_dump() == {
         "thr_cmd_lost_ticks": 2, "heartbeat_lost_s": 0.8, "gyro_lost_ticks": 6,
-        "recover_ticks": 3}
+        "recover_ticks": 3, "thr_cmd_missing": "zero"}
     default = load_scenario(_scenario(tmp_path))
     assert safety_settings(default, base).model_dump() == {
         "thr_cmd_lost_ticks": 3, "heartbeat_lost_s": 1.5, "gyro_lost_ticks": 3,
-        "recover_ticks": 3}
+        "recover_ticks": 3, "thr_cmd_missing": "zero"}
 
 
 @pytest.mark.parametrize(("flag", "value", "msg"), [
@@ -272,7 +272,8 @@ def test_realtime_plant_closes_every_valve_when_thr_cmd_stops(tmp_path) -> None:
 
     _run_realtime_with(shell, flight, fake_flight, done)
     recs = [r for r in read_jsonl(out / "plant.jsonl") if not r.get("final")]
-    assert recs[0]["config"]["safety"] == {"thr_cmd_lost_ticks": 2, "heartbeat_lost_s": 1.0}
+    assert recs[0]["config"]["safety"] == {"thr_cmd_lost_ticks": 2, "heartbeat_lost_s": 1.0,
+                                           "thr_cmd_missing": "zero"}
     events = [e for r in recs for e in r["events"] if e.startswith("safe:")]
     assert len(events) == 1 and events[0].endswith("(no THR_CMD for 2 ticks)"), events
     closed_at = _closed_at(events[0])

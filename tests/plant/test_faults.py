@@ -130,8 +130,8 @@ def test_close_all_valves() -> None:
      "fault: t_s: expected >= 0, got -2.0"),
     ({"kind": "melt", "t_s": 1.0, "thruster": "X+"},
      "fault: kind: expected one of 'stuck_on', 'fail_to_fire', 'degraded', 'gyro_spike', "
-     "'gyro_bias_step', 'gyro_frozen', 'gyro_noise', 'bus_drop', 'bus_delay', 'bus_corrupt' or "
-     "'node_silent', got 'melt'"),
+     "'gyro_bias_step', 'gyro_frozen', 'gyro_noise', 'bus_drop', 'bus_delay', 'bus_corrupt', "
+     "'node_silent' or 'bus_babble', got 'melt'"),
     ({"kind": "stuck_on", "t_s": 1.0},
      "fault: thruster: expected a thruster name for a stuck_on fault, got None"),
 ])
