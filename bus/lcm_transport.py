@@ -155,7 +155,10 @@ class LcmPort(Port):
         self._inbox.append((channel, bytes(data), time.time()))
 
     def _drain_python_can(self, timeout_s: float,
-                          got: list[tuple[Frame, can.Message | None]]) -> None:
+                          got: list[tuple[Frame, can.Message | None]],
+                          limit: int | None = None) -> None:
+        """Read what LCM has and turn each message into its set's frames; with ``limit``,
+        whole messages up to about that many frames, the rest kept for the next poll."""
         fd = self.lc.fileno()
         timeout = max(0.0, timeout_s)
         while True:
@@ -165,7 +168,10 @@ class LcmPort(Port):
             self.lc.handle()
             timeout = 0.0
         inbox, self._inbox = self._inbox, []
-        for channel, data, rx in inbox:
+        for k, (channel, data, rx) in enumerate(inbox):
+            if limit is not None and len(got) >= limit:
+                self._inbox = inbox[k:] + self._inbox
+                break
             if (channel, data) in self._sent:
                 self._sent.remove((channel, data))  # our own message, looped back
                 self.echoes_dropped += 1

@@ -59,8 +59,10 @@ class Detection:
     direction (indices, sorted, includes ``thruster``); ``kind`` ``stuck_on`` or
     ``fail_to_fire``, ``degraded`` or ``gyro_fault`` (a sensor fault: ``thruster`` is -1, the
     group empty, ``names`` the fault's kind, ``flight.gyro_check``); ``rho`` the residual value
-    at the crossing; ``source`` ``residual`` (seed 000/003), ``kalman`` (seed 002 leak test) or
-    ``gyro``; ``fraction`` the estimated thrust fraction of a degraded (or failed) thruster.
+    at the crossing; ``source`` ``residual`` (seed 000/003), ``kalman`` (seed 002 leak test),
+    ``gyro``, or ``isolation`` (renamed, or decided after a probe, by the flight's isolation of
+    opposite thrusters, ``flight.software``); ``fraction`` the estimated thrust fraction of a
+    degraded (or failed) thruster.
     """
 
     tick: int

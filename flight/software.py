@@ -23,7 +23,7 @@ made at the end of tick n from the observer's estimate and those commands.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -149,7 +149,7 @@ class FlightSoftware:
         jump = dc.gyro_jump_rad_s if dc.gyro_jump_rad_s is not None else 10.0 * dc.dead_zone_rad_s
         self.gyro_check = GyroCheck(jump, math.sqrt(12.0) * vehicle.gyro.noise_std_rad_s)
         self._held: tuple | None = None
-        self._window: list[tuple[np.ndarray, np.ndarray]] = []
+        self._window: list[tuple[np.ndarray, np.ndarray, bool]] = []
         # (detection held back, the pair left out of the allocation, ticks left) while probing
         self._probe: tuple[Detection | None, tuple[int, int], int] | None = None
         self._probed: dict[tuple[int, int], int] = {}
@@ -309,7 +309,8 @@ class FlightSoftware:
         if tick == self._tick:
             self._det_out = out
         if not out.held and pred.eff_s is not None:
-            self._window.append((np.asarray(dw, dtype=float), np.asarray(pred.eff_s, float)))
+            self._window.append((np.asarray(dw, dtype=float), np.asarray(pred.eff_s, float),
+                                 not out.dead_zone))
             del self._window[:-_ISOLATION_TICKS]
             if self._probe is not None:
                 held_det, pair, left = self._probe
@@ -367,8 +368,12 @@ class FlightSoftware:
         d = self.detector
         mu_abs = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1)
         k = self.effectiveness.k
-        dw = np.array([w for w, _ in self._window])
-        eff = np.array([e for _, e in self._window])
+        # From the first tick outside the dead zone on: the ticks before the fault say nothing
+        # of it (a leak fitted over them would be judged by ticks it did not exist on).
+        first = next((k for k, (_, _, out) in enumerate(self._window) if out), 0)
+        win = self._window[first:]
+        dw = np.array([w for w, _, _ in win])
+        eff = np.array([e for _, e, _ in win])
         closed = self.h - np.clip(eff, 0.0, self.h)
         if det.kind == STUCK_ON:
             j = det.thruster
@@ -402,10 +407,12 @@ class FlightSoftware:
             else:
                 continue
             group = tuple(g for g in d.groups[who] if avail[g])
-            return Detection(tick=det.tick, thruster=who, kind=kind, group=group,
+            return Detection(tick=self._tick, thruster=who, kind=kind, group=group,
                              names=tuple(self.arrays.names[g] for g in group), rho=rho,
-                             source=det.source, fraction=frac)
-        return det
+                             source="isolation", fraction=frac)
+        # After a probe the detection is the pair's fit, on this tick (source "isolation");
+        # the replay of the residuals (hil campaign sweep) sees only the detector's crossings.
+        return replace(det, tick=self._tick, source="isolation") if decide else det
 
     def _gyro_suspect(self) -> bool:
         return self._held is not None or self.gyro_check.suspect

@@ -16,11 +16,11 @@ import struct
 
 class fault_cmd_t(object):
 
-    __slots__ = ["request_id", "action", "kind", "thruster", "fraction", "start_time_s", "clear_time_s", "n_frames", "e2e_counter", "e2e_crc"]
+    __slots__ = ["request_id", "action", "kind", "thruster", "fraction", "message", "start_time_s", "clear_time_s", "n_frames", "e2e_counter", "e2e_crc"]
 
-    __typenames__ = ["int16_t", "int8_t", "int8_t", "int8_t", "double", "double", "double", "int8_t", "int8_t", "byte"]
+    __typenames__ = ["int16_t", "int8_t", "int8_t", "int8_t", "double", "int8_t", "double", "double", "int8_t", "int8_t", "byte"]
 
-    __dimensions__ = [None, None, None, None, None, None, None, None, ["n_frames"], ["n_frames"]]
+    __dimensions__ = [None, None, None, None, None, None, None, None, None, ["n_frames"], ["n_frames"]]
 
     def __init__(self):
         self.request_id = 0
@@ -41,8 +41,14 @@ class fault_cmd_t(object):
 
         self.fraction = 0.0
         """
-        residual or degraded thrust fraction, or fault magnitude 0..1
+        residual or degraded thrust fraction, or fault magnitude 0..1; bus faults: probability (bus_delay: delay in s, bus_babble: rate / 20000 Hz)
         LCM Type: double
+        """
+
+        self.message = 0
+        """
+        bus faults: 0 every frame, k the k-th name of bus.faults.MESSAGE_NAMES
+        LCM Type: int8_t
         """
 
         self.start_time_s = 0.0
@@ -76,7 +82,7 @@ class fault_cmd_t(object):
         return buf.getvalue()
 
     def _encode_one(self, buf):
-        buf.write(struct.pack(">hbbbdddb", self.request_id, self.action, self.kind, self.thruster, self.fraction, self.start_time_s, self.clear_time_s, self.n_frames))
+        buf.write(struct.pack(">hbbbdbddb", self.request_id, self.action, self.kind, self.thruster, self.fraction, self.message, self.start_time_s, self.clear_time_s, self.n_frames))
         buf.write(struct.pack('>%db' % self.n_frames, *self.e2e_counter[:self.n_frames]))
         buf.write(bytearray(self.e2e_crc[:self.n_frames]))
 
@@ -93,7 +99,7 @@ class fault_cmd_t(object):
     @staticmethod
     def _decode_one(buf):
         self = fault_cmd_t()
-        self.request_id, self.action, self.kind, self.thruster, self.fraction, self.start_time_s, self.clear_time_s, self.n_frames = struct.unpack(">hbbbdddb", buf.read(30))
+        self.request_id, self.action, self.kind, self.thruster, self.fraction, self.message, self.start_time_s, self.clear_time_s, self.n_frames = struct.unpack(">hbbbdbddb", buf.read(31))
         self.e2e_counter = struct.unpack('>%db' % self.n_frames, buf.read(self.n_frames))
         self.e2e_crc = buf.read(self.n_frames)
         return self
@@ -101,7 +107,7 @@ class fault_cmd_t(object):
     @staticmethod
     def _get_hash_recursive(parents):
         if fault_cmd_t in parents: return 0
-        tmphash = (0x84ea43428f19e6d5) & 0xffffffffffffffff
+        tmphash = (0xcab27984143626b2) & 0xffffffffffffffff
         tmphash  = (((tmphash<<1)&0xffffffffffffffff) + (tmphash>>63)) & 0xffffffffffffffff
         return tmphash
     _packed_fingerprint = None

@@ -49,7 +49,7 @@ class gyro_t(object):
 
         self.status = 0
         """
-        bit 0 valid, bit 1 saturated, bit 2 frozen (test flag)
+        bit 0 valid, bit 1 saturated, bit 2 frozen (test flag), bit 3 last command not applied
         LCM Type: int16_t
         """
 

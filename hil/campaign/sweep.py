@@ -20,7 +20,9 @@ and judges the first detection with ``hil.summary.summarise`` (the same judgemen
 A test checks that the replay at the vehicle's own settings finds the detector's own first
 detection in every recorded run, so the replay and ``flight/detector.py`` cannot drift apart
 unnoticed. What the replay does not cover: the dead zone (it acts before ``xi``) and the Kalman
-leak test (seed 002; its detections are not replayed), and only the first detection of a run.
+leak test (seed 002; its detections are not replayed), the isolation of opposite thrusters
+(``flight.software``: a crossing it renames or probes is replayed as the detector's own), and
+only the first detection of a run.
 
 Outputs: ``DIR/<campaign>/`` (rows and ``residuals/run-K.npz``, resumable like a campaign),
 ``DIR/sweep.json`` and ``DIR/sweep.png`` (the operating curve).
