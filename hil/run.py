@@ -354,7 +354,13 @@ def _node_cmd(node: str, scenario: Path, out: Path, args,
     return cmd
 
 
-def _wait_ready(path: Path, proc: subprocess.Popen, timeout_s: float = 30.0) -> None:
+# A node's start (imports, the cores' set-up, the bus) inside user-mode Linux on a loaded
+# machine took over 30 s once (a fresh clone, nothing compiled yet); a node that dies is seen
+# at once, so the limit only bounds a hang.
+READY_TIMEOUT_S = 90.0
+
+
+def _wait_ready(path: Path, proc: subprocess.Popen, timeout_s: float = READY_TIMEOUT_S) -> None:
     t_end = time.monotonic() + timeout_s
     while not path.exists():
         if proc.poll() is not None:

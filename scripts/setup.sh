@@ -37,3 +37,6 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   .venv/bin/python -m pip install -q -e ".[test]"
   echo "$want" > "$stamp"
 fi
+# Byte-compile the project once: the first process start inside user-mode Linux (slow CPU)
+# would otherwise compile every module while the supervisor waits for it to be ready.
+.venv/bin/python -m compileall -q common hil bus flight plant >/dev/null

@@ -140,7 +140,7 @@ def test_hil_up_by_default_takes_a_fault_from_the_host_and_keeps_the_detection(t
     out, log = tmp_path / "up", tmp_path / "log.txt"
     proc = _start(["up", "--vehicle", "generic", "--mode", "lockstep", "--out", str(out)], log)
     _wait_for(lambda: _ticks(out / "plant.jsonl") > 5
-              and (out / "control" / "bridge.json").exists(), 120, "hil up running", log)
+              and (out / "control" / "bridge.json").exists(), 240, "hil up running", log)
     t0 = time.monotonic()
     inj = subprocess.run([*HIL, "fault", "inject", "--thruster", "X+", "--type", "stuck_on",
                           "--run", str(out)], capture_output=True, text=True, timeout=60,
@@ -222,7 +222,7 @@ def test_console_on_hil_up_injects_and_shows_the_detection(tmp_path):
     proc = _start(["up", "--vehicle", "generic", "--mode", "lockstep", "--out", str(out)], log)
     try:
         _wait_for(lambda: _ticks(out / "plant.jsonl") > 5
-                  and (out / "control" / "bridge.json").exists(), 120, "hil up running", log)
+                  and (out / "control" / "bridge.json").exists(), 240, "hil up running", log)
         ConsoleApp, _ = _app_classes()
         app = ConsoleApp(out)
 
@@ -295,7 +295,7 @@ def test_hil_up_console_in_a_real_80x24_terminal(tmp_path):
     _tmux("-S", sock, "new-session", "-d", "-s", "op", "-x", "80", "-y", "24",
           "env", "TERM=xterm-256color", "RERUN_ANALYTICS=0", "sh", "-c", cmd)
     try:
-        wait_screen("vehicle generic", 120)
+        wait_screen("vehicle generic", 240)
         t_end = time.monotonic() + 60
         while not (out / "control" / "bridge.json").exists():
             assert time.monotonic() < t_end
