@@ -228,10 +228,11 @@ def test_flight_goes_safe_when_the_gyro_stops(tmp_path) -> None:
 def test_fault_panel_into_running_system(tmp_path) -> None:
     out = tmp_path / "up"
     up = subprocess.Popen(HIL + ["up", "--vehicle", "generic", "--mode", "realtime",
-                                 "--duration", "60", "--out", str(out)],
+                                 "--duration", "180", "--out", str(out)],
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        t_end = time.monotonic() + 60
+        # Start-up inside user-mode Linux on a loaded machine can take tens of seconds.
+        t_end = time.monotonic() + 120
         while not (out / "plant.jsonl").exists() or \
                 len((out / "plant.jsonl").read_text().splitlines()) < 10:
             assert up.poll() is None and time.monotonic() < t_end
@@ -244,6 +245,7 @@ def test_fault_panel_into_running_system(tmp_path) -> None:
         assert ok.returncode == 0 and "accepted" in ok.stdout, ok.stdout + ok.stderr
         assert "vehicle generic" in ok.stdout
         found = None
+        t_end = time.monotonic() + 30  # the stuck X+ is detected within a few seconds
         while found is None and time.monotonic() < t_end:
             for line in (out / "flight.jsonl").read_text().splitlines():
                 d = json.loads(line).get("detection")
@@ -252,7 +254,10 @@ def test_fault_panel_into_running_system(tmp_path) -> None:
             time.sleep(0.2)
         assert found and found["thruster"] == "X+" and found["type"] == "stuck_on"
         listed = _run(["fault", "list", *run])
-        assert listed.returncode == 0 and '"thruster": "X+"' in listed.stdout, listed.stdout
+        # The active faults as a table: thruster, type, fraction, from, until.
+        assert listed.returncode == 0 and any(
+            line.split()[:2] == ["X+", "stuck_on"] for line in listed.stdout.splitlines()
+            if line.strip()), listed.stdout
         # A second panel process: its E2E counters start again at 0 (resent until taken).
         cleared = _run(["fault", "clear", "--thruster", "X+", *run])
         assert cleared.returncode == 0 and "accepted clear X+" in cleared.stdout, \
