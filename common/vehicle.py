@@ -229,6 +229,14 @@ class DetectorCfg(_Model):
     # A pulse that lands a few ms late spills its tail into the next tick, where the thruster
     # is not commanded: read as a leak. 0 turns it off. Needs effectiveness_bound > 0.
     learn_latency_ms: float = Field(default=0.0, ge=0.0, le=50.0)
+
+    @model_validator(mode="after")
+    def _latency_needs_the_learning(self) -> DetectorCfg:
+        # The latency is a state of the effectiveness filter: without it, it would be ignored.
+        if self.learn_latency_ms > 0.0 and self.effectiveness_bound <= 0.0:
+            raise _FieldError("learn_latency_ms", "0 when effectiveness_bound is 0 (the latency "
+                              "is learnt with the effectiveness)", self.learn_latency_ms)
+        return self
     # A commanded-evidence detection whose estimated thrust fraction is at least this is
     # "degraded" (with the fraction), below it "fails to fire". chosen: halfway between a
     # thruster that gives nothing and the smallest degradation worth reporting (30 %).

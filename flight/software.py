@@ -134,7 +134,7 @@ class FlightSoftware:
         self.observer = AdaptiveObserver(fc.observer, self.h)
         dc = fc.detector
         # Measurement variance: the residual the detector treats as noise (its dead zone).
-        learn_lat = dc.learn_latency_ms / 1000.0 if dc.effectiveness_bound > 0.0 else 0.0
+        learn_lat = dc.learn_latency_ms / 1000.0  # needs effectiveness_bound > 0 (validated)
         self.effectiveness = Effectiveness(self.arrays.mu_B_rad_s2, dc.effectiveness_bound,
                                            dc.dead_zone_rad_s**2, self.h,
                                            latency_bound_s=learn_lat,

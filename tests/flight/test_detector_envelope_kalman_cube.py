@@ -110,3 +110,14 @@ def test_opposite_hypotheses_are_told_apart(fault: FaultSpec, named: tuple[str, 
     t, d = dets[0]
     assert (d.names[0], d.kind) == named, d.describe()
     assert t - fault.t_s <= 3.0
+
+
+def test_latency_learning_without_the_effectiveness_is_refused() -> None:
+    """The latency is a state of the effectiveness filter: asking for it with the learning
+    off is a one-line configuration error, not an option silently ignored."""
+    from common.errors import ConfigError
+    from hil.config import load_vehicle
+
+    with pytest.raises(ConfigError, match=r"learn_latency_ms: expected 0 when "
+                                          r"effectiveness_bound is 0.*got 20\.0"):
+        load_vehicle("kalman_cube", {"detector": {"effectiveness_bound": 0.0}})
