@@ -191,7 +191,8 @@ class ObserverCfg(_Model):
     gains: tuple[float, float, float, float, float, float, float, float] = (
         0.5, 0.5, 0.05, 0.05, 0.01, 0.01, 0.1, 0.1,
     )
-    initial_freq_hz: PosFloat = 0.2
+    # one a-priori frequency of the dominant mode for all channels, or [x, y, z] per channel
+    initial_freq_hz: PosFloat | tuple[PosFloat, PosFloat, PosFloat] = 0.2
     initial_damping: NonNegFloat = 0.01
     # |mu^| bound: the flex share at the gyro of a pulse's rate change (seed 003 eq. 8)
     mu_bound: PosFloat = 5.0
@@ -217,6 +218,11 @@ class DetectorCfg(_Model):
     # model uses is bounded to 1 +/- effectiveness_bound (0 turns the learning off).
     # chosen: docs/design.md 10 admits +/-15 % thrust errors; 0.2 learns them with a margin.
     effectiveness_bound: float = Field(default=0.2, ge=0.0, lt=1.0)
+    # Share of the prior variance of the thrust scales that is common to every thruster (one
+    # feed pressure and propellant temperature: seed 003's flight test found all thrusters
+    # ~15 % weak together). 0: independent scales. With a share, one thruster's firing also
+    # informs the scale of those that have not fired yet (flight.detector.Effectiveness).
+    effectiveness_common_share: float = Field(default=0.0, ge=0.0, lt=1.0)
     # None: the dead zone is a sphere, its radius the sum above. A number: an ellipsoid, each
     # commanded thruster j adding relative_dead_zone |dw_j| along its own acceleration
     # direction and this fraction of |dw_j| across it (a direction error: sin 2 deg = 0.035),

@@ -157,6 +157,12 @@ class Effectiveness:
     (chi^2 above ``_CHI2_RESET``) restarts the variance of the burning thrusters' ``theta``
     and of every leak, so a new thrust is estimated within a few ticks.
 
+    ``common_share`` (in [0, 1)) is the share of the thrust scales' prior variance ``p0``
+    that all thrusters have in common: the prior covariance of theta is
+    ``p0 (c 1 1^T + (1 - c) I)``, so the filter learns a common scale error from whichever
+    thrusters fire, and each thruster's own error on top of it (the envelope of DESIGN 10
+    stacks a global and a per-thruster +/-15 %).
+
     ``trust()`` keeps a copy of the estimate while the detector's evidence is quiet; after a
     response ``restore()`` goes back to it, so what the fault pushed does not carry into the
     new configuration.
@@ -165,7 +171,8 @@ class Effectiveness:
     def __init__(self, mu_B_rad_s2: np.ndarray, bound: float, r_var: float, tick_s: float,
                  p0: float = 0.04, q: float = 1e-4, p0_leak: float = 0.01,
                  q_leak: float = 1e-6, latency_bound_s: float = 0.0,
-                 q_latency: float = 1e-10, latency_floor_s: float | None = None) -> None:
+                 q_latency: float = 1e-10, latency_floor_s: float | None = None,
+                 common_share: float = 0.0) -> None:
         self.mu = np.asarray(mu_B_rad_s2, dtype=float)
         n = len(self.mu)
         self.n = n
@@ -184,6 +191,9 @@ class Effectiveness:
         self.q = np.concatenate([np.full(n, q), np.full(n, q_leak), np.full(len(lat), q_latency)])
         self.x = np.concatenate([np.ones(n), np.zeros(n), lat])
         self.P = np.diag(self.p0)
+        if not 0.0 <= common_share < 1.0:
+            raise ValueError(f"common_share: expected a value in [0, 1), got {common_share}")
+        self.P[:n, :n] += float(common_share) * p0 * (np.ones((n, n)) - np.eye(n))
         self._trusted = (self.x.copy(), self.P.copy())
         self._recent: list[list[float]] = [[] for _ in range(n)]
 

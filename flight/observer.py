@@ -122,16 +122,22 @@ class AdaptiveObserver:
             raise ValueError(f"observer kind: expected 'adaptive' or 'rigid', got {self.kind!r}")
         self.W = tuple(float(w) for w in cfg.gains)
         self.h = float(tick_s)
-        f0 = float(cfg.initial_freq_hz)
+        # One a-priori frequency for every channel, or one per channel (x, y, z): a vehicle
+        # whose modes couple into different axes at different frequencies gives each channel
+        # the ground estimate of its own dominant mode.
+        f0 = np.broadcast_to(np.asarray(cfg.initial_freq_hz, dtype=float), (3,)).copy()
         delta = float(cfg.initial_damping)
         self.f0_hz = f0
         self.delta = delta
-        lo, hi = freq_bounds_hz or (f0 / 4.0, min(4.0 * f0, 0.4 / self.h))
+        if freq_bounds_hz is None:
+            lo, hi = f0 / 4.0, np.minimum(4.0 * f0, 0.4 / self.h)
+        else:
+            lo, hi = (np.full(3, float(b)) for b in freq_bounds_hz)
         self.freq_bounds_hz = (lo, hi)
-        self.B = math.exp(-2.0 * delta * f0 * self.h)
-        rb = math.sqrt(self.B)
-        self._A_min = 2.0 * rb * math.cos(2.0 * math.pi * hi * self.h)
-        self._A_max = 2.0 * rb * math.cos(2.0 * math.pi * lo * self.h)
+        self.B = np.exp(-2.0 * delta * f0 * self.h)
+        rb = np.sqrt(self.B)
+        self._A_min = 2.0 * rb * np.cos(2.0 * math.pi * hi * self.h)
+        self._A_max = 2.0 * rb * np.cos(2.0 * math.pi * lo * self.h)
         self._floor2 = noise_floor_rad_s**2
         self.mu_bound = float(cfg.mu_bound if mu_bound is None else mu_bound)
         self.reset()
@@ -143,7 +149,7 @@ class AdaptiveObserver:
         self.g_prev = np.zeros(3)
         self.eps = np.zeros(3)
         self.u_prev = np.zeros(3)
-        self.A = np.full(3, 2.0 * math.sqrt(self.B) * math.cos(2.0 * math.pi * self.f0_hz * self.h))
+        self.A = 2.0 * np.sqrt(self.B) * np.cos(2.0 * math.pi * self.f0_hz * self.h)
         self.mu = np.zeros(3)
         self.P_g = np.zeros(3)
         self.P_v = np.zeros(3)
@@ -151,7 +157,7 @@ class AdaptiveObserver:
 
     def freq_hz(self) -> np.ndarray:
         """Frequency from A^ = 2 sqrt(B) cos(2 pi f h), Hz (3,)."""
-        c = np.clip(self.A / (2.0 * math.sqrt(self.B)), -1.0, 1.0)
+        c = np.clip(self.A / (2.0 * np.sqrt(self.B)), -1.0, 1.0)
         return np.arccos(c) / (2.0 * math.pi * self.h)
 
     def resync(self, omega_B_rad_s: np.ndarray) -> None:

@@ -138,7 +138,8 @@ class FlightSoftware:
         self.effectiveness = Effectiveness(self.arrays.mu_B_rad_s2, dc.effectiveness_bound,
                                            dc.dead_zone_rad_s**2, self.h,
                                            latency_bound_s=learn_lat,
-                                           latency_floor_s=-self.model.nominal_latency_s)
+                                           latency_floor_s=-self.model.nominal_latency_s,
+                                           common_share=dc.effectiveness_common_share)
         if learn_lat > 0.0:
             self.model.learn_latency()
         self.detector = Detector(self.arrays.mu_B_rad_s2, dc, self.arrays.names,

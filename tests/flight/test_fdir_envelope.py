@@ -60,6 +60,45 @@ def test_effectiveness_converges_to_thrust_errors(seed: int) -> None:
     assert np.abs(eff.k - theta).max() < 0.03
 
 
+@pytest.mark.parametrize("share", [0.0, 0.5, 0.9])
+def test_a_common_share_of_the_prior_teaches_unfired_thrusters_by_gaussian_conditioning(
+        share: float) -> None:
+    """Prior covariance p0 (c 1 1^T + (1 - c) I): one measurement of X+ firing moves every
+    thruster that did not fire by exactly c times X+'s own move (the regression of theta_j on
+    theta_i is c; the leak states are independent of both), and by nothing when c = 0."""
+    eff = Effectiveness(MU, bound=0.3, r_var=1e-4**2, tick_s=H, common_share=share)
+    e = np.array([0.15, 0, 0, 0, 0, 0])
+    eff.update(MU.T @ ((0.88 - 1.0) * e), e, np.ones(6, bool))  # X+ 12 % weak
+    d = eff.theta - 1.0
+    assert d[0] < -0.05
+    np.testing.assert_allclose(d[1:], share * d[0], rtol=1e-9, atol=1e-15)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_common_scale_is_learnt_for_thrusters_that_never_fired(seed: int) -> None:
+    """All thrusters 12 % weak, only the four x and y thrusters fire. Oracle: theta_j = 1 + g
+    + d_j with g ~ N(0, c p0), d_j ~ N(0, (1 - c) p0); four scales known at 0.88 give
+    E[g] = -0.12 * 4c / (4c + 1 - c), the best guess for a thruster that never fired (0.904
+    for c = 0.5; 1 for c = 0). After 1,000 ticks, within 0.02 (the random walk widens it)."""
+    theta = np.full(6, 0.88)
+    rng = np.random.default_rng(seed)
+    for share in (0.5, 0.0):
+        want = 1.0 - 0.12 * 4 * share / (3 * share + 1)
+        eff = Effectiveness(MU, bound=0.3, r_var=1e-4**2, tick_s=H, common_share=share)
+        for _ in range(1000):
+            e = np.where(rng.random(6) < 0.3, rng.uniform(0.03, H, 6), 0.0)
+            e[4:] = 0.0
+            eff.update(MU.T @ ((theta - eff.k) * e) + 2e-5 * rng.standard_normal(3), e,
+                       np.ones(6, bool))
+        assert np.abs(eff.k[:4] - 0.88).max() < 0.04
+        assert np.abs(eff.k[4:] - want).max() < 0.02
+
+
+def test_a_common_share_outside_0_1_is_refused() -> None:
+    with pytest.raises(ValueError, match="common_share"):
+        Effectiveness(MU, bound=0.3, r_var=1e-8, tick_s=H, common_share=1.0)
+
+
 def test_effectiveness_stays_bounded_and_reads_the_fraction_of_a_degraded_thruster() -> None:
     """A thruster at 50 % keeps the model's scale at the bound 0.8 (the rest stays in the
     residual for the detector) while its fraction reads 0.5 within 0.05; the others stay

@@ -63,3 +63,40 @@ def test_rigid_with_unit_gain_returns_the_measurement() -> None:
     out = obs.update(np.array([1.0, 2.0, 3.0]), np.zeros(3), np.array([0.5, 0, 0]))
     np.testing.assert_allclose(out.omega_hat_B_rad_s, [1.0, 2.0, 3.0])
     np.testing.assert_allclose(out.innovation_B_rad_s, [0.5, 2.0, 3.0])
+
+
+def test_per_channel_initial_frequency_identifies_a_different_mode_on_each_channel() -> None:
+    """orel's arrays ring at 0.3 Hz in roll and 0.8 Hz in yaw: each channel starts from its own
+    ground estimate, keeps its own band (f0/4 .. min(4 f0, 0.4/h)), and identifies its own tone
+    while the other channel rings at another frequency."""
+    f_true = np.array([0.3, 0.8, 0.3])
+    delta, mu_true, noise = 0.02, 2.0, 1e-5
+    rng = np.random.default_rng(11)
+    A = 2 * np.exp(-delta * f_true * H) * np.cos(2 * np.pi * f_true * H)
+    B = np.exp(-2 * delta * f_true * H)
+    obs = AdaptiveObserver(ObserverCfg(gains=GAINS, initial_freq_hz=(0.3, 0.8, 0.3),
+                                       initial_damping=delta), H)
+    np.testing.assert_allclose(obs.freq_hz(), [0.3, 0.8, 0.3])
+    np.testing.assert_allclose(obs.freq_bounds_hz[0], [0.075, 0.2, 0.075])
+    np.testing.assert_allclose(obs.freq_bounds_hz[1], [1.2, 2.0, 1.2])
+    w, g, g_prev, u_prev = np.full(3, 1e-3), np.zeros(3), np.zeros(3), np.zeros(3)
+    err, amp = [], []
+    for n in range(1500):
+        y = w + g + noise * rng.standard_normal(3)
+        out = obs.update(y, np.zeros(3), u_prev)
+        err.append(np.abs(out.omega_hat_B_rad_s - w))
+        amp.append(np.abs(g))
+        s = 1.0 if (n // 30) % 2 == 0 else -1.0
+        u = np.array([2e-3, -2e-3, 0.0]) * s if n % 30 == 5 else np.zeros(3)
+        g, g_prev = A * g - B * g_prev + mu_true * (u - A / 2 * u_prev), g
+        w = w + u
+        u_prev = u
+    half = slice(750, None)
+    tone = np.max(amp[half], axis=0)[:2]
+    assert np.all(np.max(err[half], axis=0)[:2] < tone / 20.0)
+    np.testing.assert_allclose(out.freq_hat_hz[:2], f_true[:2], rtol=0.03)
+
+
+def test_a_scalar_initial_frequency_is_the_same_on_every_channel() -> None:
+    obs = AdaptiveObserver(ObserverCfg(gains=GAINS, initial_freq_hz=0.3), H)
+    np.testing.assert_allclose(obs.freq_hz(), [0.3, 0.3, 0.3])

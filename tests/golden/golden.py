@@ -6,7 +6,8 @@ The reference files ``tests/golden/<scenario>.json`` were written on the commit 
 architecture restructuring (which left every one unchanged) and written again, on purpose,
 when the FDIR envelope work changed the detector, the observer and the plant's random torque,
 and again with the isolation of opposite thrusters on numpy 2.4.6 / scipy 1.17.1 (pinned in
-pyproject.toml; the earlier files no longer matched on this machine's libraries);
+pyproject.toml; the earlier files no longer matched on this machine's libraries), and for
+orel's five scenarios with its per-channel flex frequencies and common thrust-scale share;
 ``test_golden.py`` re-runs the scenarios and compares bit for bit.
 A change that is meant to change the numbers regenerates them on purpose::
 
