@@ -1,15 +1,49 @@
 #!/usr/bin/env bash
 # The test command: set-up, then the unit tests, then the integration tests over a real vcan0
-# (native where the kernel has CAN, otherwise inside user-mode Linux: never skipped).
+# (native where the kernel has CAN, otherwise inside user-mode Linux: never skipped), over LCM
+# (a private network namespace) and the reference scenarios.
+#
+# Wall time on a 2-core machine: the unit tests run in two pytest-xdist workers; the vcan tests
+# run in two shards side by side, each in its own user-mode Linux instance (one virtual CPU
+# each): the real-time system tests, which mostly wait on the clock, beside the rest.
+# HIL_TEST_JOBS=1 runs everything one after the other.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export RERUN_ANALYTICS=0
+JOBS=${HIL_TEST_JOBS:-2}
+PYTEST=(.venv/bin/python -m pytest -q -p no:cacheprovider)
+XDIST=()
+[ "$JOBS" -gt 1 ] && XDIST=(-n "$JOBS" --dist loadgroup)  # groups: tests/conftest.py
+
 echo "== unit tests"
-.venv/bin/python -m pytest -m "not vcan and not reference and not lcm" -q -p no:cacheprovider "$@"
+"${PYTEST[@]}" "${XDIST[@]}" -m "not vcan and not reference and not lcm" "$@"
+
 echo "== integration tests over vcan0"
-.venv/bin/hil vcan exec -- .venv/bin/python -m pytest -m vcan -q -p no:cacheprovider "$@"
+# Shard R: the real-time system tests (one user-mode Linux instance); shard V: every other
+# vcan test (another instance). A new vcan test lands in shard V by itself.
+SHARD_R=(tests/integration/test_system.py tests/integration/test_run_failures.py)
+IGNORE_R=()
+for f in "${SHARD_R[@]}"; do IGNORE_R+=(--ignore "$f"); done
+if [ "$JOBS" -gt 1 ]; then
+  logs=$(mktemp -d)
+  trap 'rm -rf "$logs"' EXIT
+  .venv/bin/hil vcan exec -- "${PYTEST[@]}" -m vcan "${SHARD_R[@]}" "$@" >"$logs/r" 2>&1 &
+  pid_r=$!
+  .venv/bin/hil vcan exec -- "${PYTEST[@]}" -m vcan "${IGNORE_R[@]}" "$@" >"$logs/v" 2>&1 &
+  pid_v=$!
+  rc_r=0; rc_v=0
+  wait "$pid_r" || rc_r=$?
+  wait "$pid_v" || rc_v=$?
+  echo "-- shard R (real-time system tests): exit $rc_r"; cat "$logs/r"
+  echo "-- shard V (the other vcan tests): exit $rc_v"; cat "$logs/v"
+  [ "$rc_r" = 0 ] && [ "$rc_v" = 0 ] || exit 1
+else
+  .venv/bin/hil vcan exec -- "${PYTEST[@]}" -m vcan "$@"
+fi
+
 echo "== integration tests over LCM (udpm in a private network namespace: never skipped)"
-.venv/bin/hil netns exec -- .venv/bin/python -m pytest -m lcm -q -p no:cacheprovider "$@"
+.venv/bin/hil netns exec -- "${PYTEST[@]}" -m lcm "$@"
+
 echo "== reference scenarios over vcan0 (hil run-all: native, or user-mode Linux instances)"
-.venv/bin/python -m pytest -m reference -q -p no:cacheprovider "$@"
+"${PYTEST[@]}" -m reference "$@"
