@@ -81,16 +81,17 @@ def rejects(bus: dict[str, dict[str, int]]) -> dict[str, dict[str, int]]:
     return {node: {k: int(c[k]) for k in REJECTS if c.get(k)} for node, c in bus.items()}
 
 
-def forged_used(summary: dict, plant_records: list[dict],
-                flight_records: list[dict]) -> dict[str, int]:
+def forged_used(summary: dict, plant_records: list[dict], flight_records: list[dict],
+                scheduled_faults: int = 0) -> dict[str, int]:
     """Forged commands that were used (module doc): ``fault_cmd`` faults that became active
-    (the run has no genuine FAULT_CMD and no scheduled fault), ``thr_cmd`` THR_CMD applied by
-    the plant as received whose (tick, total on-time) the flight never sent."""
+    beyond the ``scheduled_faults`` of the scenario (the run has no genuine FAULT_CMD),
+    ``thr_cmd`` THR_CMD applied by the plant as received whose (tick, total on-time) the
+    flight never sent."""
     sent = {(int(r["tick"]) & 0xFFFF, int(r.get("thr_cmd_on_ms", 0))) for r in flight_records
             if isinstance(r.get("tick"), int)}
     applied = [(int(t) & 0xFFFF, int(ms)) for r in plant_records
                for t, ms in r.get("thr_cmd_applied", [])]
-    return {"fault_cmd": len(summary.get("faults") or []),
+    return {"fault_cmd": max(0, len(summary.get("faults") or []) - scheduled_faults),
             "thr_cmd": sum(1 for a in applied if a not in sent),
             "thr_cmd_applied": len(applied)}
 
@@ -109,10 +110,10 @@ def expected_at(by_id: dict[str, int]) -> dict[str, int]:
 
 def run_figures(load: str, summary: dict, plant_records: list[dict],
                 flight_records: list[dict], duration_s: float, tick_s: float,
-                flood: dict | None) -> dict[str, Any]:
+                flood: dict | None, scheduled_faults: int = 0) -> dict[str, Any]:
     """One row of the campaign (module doc)."""
     bus = summary.get("bus") or {}
-    used = forged_used(summary, plant_records, flight_records)
+    used = forged_used(summary, plant_records, flight_records, scheduled_faults)
     failures = [str(f) for f in summary.get("run_failures") or []]
     return {
         "load": load,
@@ -266,7 +267,8 @@ def run_one(kind: str, rate: float, scenario: dict, out: Path, args,
     plant, flight = list(read_jsonl(out / "plant.jsonl")), list(read_jsonl(out / "flight.jsonl"))
     tick_s = load_vehicle(scenario["vehicle"]).timing.tick_s
     row = run_figures(load_name(kind, rate), summary, plant, flight,
-                      float(scenario["duration_s"]), tick_s, flood_res)
+                      float(scenario["duration_s"]), tick_s, flood_res,
+                      len(scenario.get("faults") or []))
     row["run_dir"] = str(out)
     return row
 
