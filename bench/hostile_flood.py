@@ -1,4 +1,4 @@
-"""Flood figures on a scenario file (docs/hostile-bus.md section 6): ``hil bench --parts
+"""Flood figures on a scenario file (docs/hostile-bus.md sections 5 and 7): ``hil bench --parts
 hostile`` (``hil.hostile``) runs the bench's generated scenario; this runs the same campaign on
 any scenario (S000-stuck by default, the one of the first figures). Prints the table; asserts
 nothing (a benchmark, docs/style.md habit 8). Run where vcan0 exists:

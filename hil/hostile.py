@@ -1,4 +1,4 @@
-"""`hil bench --parts hostile`: the fuzz-and-flood campaign (docs/hostile-bus.md section 6).
+"""`hil bench --parts hostile`: the fuzz-and-flood campaign (docs/hostile-bus.md section 5).
 
 For each load ``CLASS:RATE`` (``hil.flood.CLASSES``; ``none`` is the quiet reference) a
 real-time run of the bench's scenario goes over the bus while ``hil flood`` floods it from a
@@ -35,9 +35,10 @@ from typing import Any
 from hil.errors import UsageError
 
 DEFAULT_LOADS = ("none", "foreign:1000", "foreign:2500", "foreign:5000",
-                 "catalog-bad-crc:250", "catalog-bad-crc:500", "catalog-bad-crc:1000",
-                 "catalog-forged:250", "catalog-forged:500", "catalog-forged:1000",
-                 "forged:100", "forged:300", "replay:100", "replay:300")
+                 "catalog-bad-crc:100", "catalog-bad-crc:300", "catalog-bad-crc:1000",
+                 "catalog-forged:100", "catalog-forged:300", "catalog-forged:1000",
+                 "forged:20", "forged:100", "forged:300", "replay:20", "replay:100",
+                 "replay:300")
 REJECTS = ("unknown_id", "wrong_length", "bad_crc", "repeated_counter", "counter_jump",
            "out_of_range", "stale", "incomplete_set", "auth_fail", "auth_missing",
            "auth_replay")
