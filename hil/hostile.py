@@ -28,7 +28,6 @@ import signal
 import subprocess
 import sys
 import time
-from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -198,13 +197,13 @@ def format_rows(host: dict) -> list[str]:
              f"load, a third process flooding (rate asked, reached)",
              f"  where: {host.get('where_text', '')}",
              f"  {'load':<24}{'reached/s':>10}{'ticks':>10}{'missed':>8}{'safe':>6}"
-             f"{'jit p99':>9}{'kdrop p/f':>11}{'forged':>8}  held  rejected"]
+             f"{'jit p99':>9}{'kdrop p/f':>11}{'forged':>8}  held  rejected (p: plant, "
+             f"f: flight)"]
     for r in host.get("runs") or []:
         fl = r.get("flood") or {}
         kd = r.get("kernel_drops") or {}
-        rej: Counter[str] = Counter()
-        for c in (r.get("rejects") or {}).values():
-            rej.update(c)
+        rej = "; ".join(f"{node[0]}: " + ", ".join(f"{k} {v}" for k, v in sorted(c.items()))
+                        for node, c in (r.get("rejects") or {}).items() if c)
         jit = r.get("jitter_p99_ms")
         lines.append(
             f"  {r['load']:<24}{fl.get('rate_reached_hz', '-')!s:>10}"
@@ -212,7 +211,7 @@ def format_rows(host: dict) -> list[str]:
             f"{r['plant_safe_records']:>6}{'-' if jit is None else f'{jit:.1f}':>9}"
             f"{str(kd.get('plant', '-')) + '/' + str(kd.get('flight', '-')):>11}"
             f"{r['forged_used']:>8}  {'yes' if r.get('held') else 'no ':<4}  "
-            + (", ".join(f"{k} {v}" for k, v in sorted(rej.items())) or "-"))
+            + (rej or "-"))
     lg = host.get("largest_held") or {}
     if lg:
         lines.append(f"  largest rate held (no missed release, no safe state, jitter p99 <= "

@@ -97,7 +97,7 @@ def test_the_table_shows_every_figure_of_a_run() -> None:
                                    **hostile.judge(rows), "where": {"kernel": "native kernel"}}}
     text = bench_table.format_table(rep)
     for needle in ("hostile bus: orel, 20.0 s", "catalog-bad-crc:1000", "100/100", "12/3",
-                   "bad_crc 900", "largest rate held", "1000/s asked (50.0/s reached)",
+                   "p: bad_crc 900", "largest rate held", "1000/s asked (50.0/s reached)",
                    "native kernel"):
         assert needle in text, needle
     assert bench_table.check_figures(rep, ("hostile",)) == []
