@@ -67,12 +67,13 @@ def test_judge_holds_and_largest_rate_per_class() -> None:
             _row("catalog-bad-crc:1000"), _row("forged:100", missed_releases=1),
             _row("replay:100", jitter_p99_ms=4.1)]
     j = hostile.judge(rows)
-    assert [r["held"] for r in rows] == [True, True, True, True, False, True, False, False]
+    assert [r["held"] for r in rows] == [True, True, True, True, False, True, False, True]
+    assert [r["jitter_within"] for r in rows] == [True] * 7 + [False]
     lg = j["largest_held"]
     assert lg["foreign"] == {"asked_hz": 5000.0, "reached_hz": 50.0}
     # 1000/s held, but 500/s did not: the rate held is the largest with every lower one held
     assert lg["catalog-bad-crc"]["asked_hz"] == 250.0
-    assert lg["forged"] is None and lg["replay"] is None
+    assert lg["forged"] is None and lg["replay"]["asked_hz"] == 100.0
     assert j["quiet_jitter_p99_ms"] == 2.0
 
 
