@@ -12,7 +12,8 @@ third process, started before the nodes and stopped after them. Per run:
   the scenario has no fault: any fault is a forged FAULT_CMD that got through) and THR_CMD
   the plant applied that the flight never sent (the plant's ``thr_cmd_applied`` against the
   flight's ``thr_cmd_on_ms``, by tick). It must be 0: anything else is a failure of the bench;
-* whether the run *held*: no missed release, no safe-state record, no run failure; per
+* whether the run *held*: no missed release, no safe-state record, no run failure, and the
+  plant applied the commands of at least 90 % of the flight's ticks; per
   class, the largest rate asked up to which every run held; apart, whether its jitter p99
   was within twice the quiet run's (the issue's third condition, shown, not part of "held":
   on a loaded machine it moves by several times between two quiet runs).
@@ -43,7 +44,11 @@ DEFAULT_LOADS = ("none", "foreign:1000", "foreign:2500", "foreign:5000",
 REJECTS = ("unknown_id", "wrong_length", "bad_crc", "repeated_counter", "counter_jump",
            "out_of_range", "stale", "incomplete_set", "auth_fail", "auth_missing",
            "auth_replay")
-JITTER_FACTOR = 2.0  # "held": jitter p99 within this factor of the quiet run's
+JITTER_FACTOR = 2.0  # shown: jitter p99 within this factor of the quiet run's
+# "held" also needs the flight's commands applied: a forger can keep every genuine THR_CMD
+# out from the start, and the plant, whose command watch arms on the first one, then fires
+# nothing without a safe state. The quiet run misses a few at the edges of the run.
+APPLIED_SHARE = 0.9
 DIED = ("died", "never ticked", "could not write")  # run failures that are a crash
 
 
@@ -146,8 +151,10 @@ def judge(rows: list[dict[str, Any]]) -> dict[str, Any]:
     quiet = next((r["jitter_p99_ms"] for r in rows if r["load"] == "none"), None)
     for r in rows:
         j = r["jitter_p99_ms"]
+        applied = (r.get("forged_used_by_kind") or {}).get("thr_cmd_applied")
         r["held"] = (r["missed_releases"] == 0 and r["plant_safe_records"] == 0
-                     and not r["run_failures"])
+                     and not r["run_failures"]
+                     and (applied is None or applied >= APPLIED_SHARE * r["flight_ticks"]))
         r["jitter_within"] = j is not None and (quiet is None
                                                 or j <= JITTER_FACTOR * max(quiet, 1e-3))
     largest: dict[str, Any] = {}
@@ -199,7 +206,7 @@ def format_rows(host: dict) -> list[str]:
     lines = [f"hostile bus: {host.get('vehicle')}, {host.get('duration_s')} s real time per "
              f"load, a third process flooding (rate asked, reached)",
              f"  where: {host.get('where_text', '')}",
-             f"  {'load':<24}{'reached/s':>10}{'ticks':>10}{'missed':>8}{'safe':>6}"
+             f"  {'load':<24}{'reached/s':>10}{'ticks':>10}{'missed':>8}{'safe':>6}{'cmds':>6}"
              f"{'jit p99':>9}{'kdrop p/f':>11}{'forged':>8}  held  <2x  rejected (p: plant, "
              f"f: flight)"]
     for r in host.get("runs") or []:
@@ -208,17 +215,20 @@ def format_rows(host: dict) -> list[str]:
         rej = "; ".join(f"{node[0]}: " + ", ".join(f"{k} {v}" for k, v in sorted(c.items()))
                         for node, c in (r.get("rejects") or {}).items() if c)
         jit = r.get("jitter_p99_ms")
+        cmds = (r.get("forged_used_by_kind") or {}).get("thr_cmd_applied", "-")
         lines.append(
             f"  {r['load']:<24}{fl.get('rate_reached_hz', '-')!s:>10}"
             f"{str(r['flight_ticks']) + '/' + str(r['due']):>10}{r['missed_releases']:>8}"
-            f"{r['plant_safe_records']:>6}{'-' if jit is None else f'{jit:.1f}':>9}"
+            f"{r['plant_safe_records']:>6}{cmds!s:>6}"
+            f"{'-' if jit is None else f'{jit:.1f}':>9}"
             f"{str(kd.get('plant', '-')) + '/' + str(kd.get('flight', '-')):>11}"
             f"{r['forged_used']:>8}  {'yes' if r.get('held') else 'no ':<4}"
             f"{'yes' if r.get('jitter_within') else 'no ':>5}  "
             + (rej or "-"))
     lg = host.get("largest_held") or {}
     if lg:
-        lines.append(f"  largest rate held (no missed release, no safe state; <2x: jitter "
+        lines.append(f"  largest rate held (no missed release, no safe state, cmds: THR_CMD "
+                     f"applied >= {100 * APPLIED_SHARE:g} % of the ticks; <2x: jitter "
                      f"p99 <= {host.get('jitter_factor', JITTER_FACTOR):g}x the quiet "
                      f"{host.get('quiet_jitter_p99_ms')} ms):")
         for kind, best in lg.items():

@@ -65,10 +65,13 @@ def test_judge_holds_and_largest_rate_per_class() -> None:
     rows = [_row("none"), _row("foreign:1000"), _row("foreign:5000", jitter_p99_ms=3.9),
             _row("catalog-bad-crc:250"), _row("catalog-bad-crc:500", plant_safe_records=3),
             _row("catalog-bad-crc:1000"), _row("forged:100", missed_releases=1),
+            _row("forged:300", forged_used_by_kind={"thr_cmd_applied": 0}),
             _row("replay:100", jitter_p99_ms=4.1)]
     j = hostile.judge(rows)
-    assert [r["held"] for r in rows] == [True, True, True, True, False, True, False, True]
-    assert [r["jitter_within"] for r in rows] == [True] * 7 + [False]
+    # forged:300: no safe state, but the plant applied none of the flight's commands
+    assert [r["held"] for r in rows] == [True, True, True, True, False, True, False, False,
+                                         True]
+    assert [r["jitter_within"] for r in rows] == [True] * 8 + [False]
     lg = j["largest_held"]
     assert lg["foreign"] == {"asked_hz": 5000.0, "reached_hz": 50.0}
     # 1000/s held, but 500/s did not: the rate held is the largest with every lower one held
