@@ -56,8 +56,10 @@ import numpy as np
 
 from hil.bench_bus import measure_bus
 from hil.bench_plots import write_plots
-from hil.bench_table import PARTS, check_figures, format_table, goals
+from hil.bench_table import DEFAULT_PARTS, PARTS, check_figures, format_table, goals
 from hil.errors import UsageError
+from hil.flood import CLASSES as FLOOD_CLASSES
+from hil.hostile import DEFAULT_LOADS as DEFAULT_HOSTILE_LOADS
 from hil.process_policy import sched_policy, where_here
 from hil.timing import STAGE_GROUPS, lockstep_figures, realtime_figures, stats_ms
 
@@ -228,6 +230,17 @@ def measure_lockstep(args, out: Path) -> dict[str, Any]:
     return fig
 
 
+def measure_hostile_part(args, out: Path) -> dict[str, Any]:
+    """The fuzz-and-flood campaign (``hil.hostile``) on the bench's scenario."""
+    from hil.hostile import measure_hostile
+
+    sc = bench_scenario(args.vehicle, args.hostile_duration, "bench-hostile")
+    where = {**where_here(), "clock": "CLOCK_MONOTONIC"}
+    with own_policy(os.SCHED_BATCH) as sup:
+        where["sched"] = {"supervisor": sup}
+        return measure_hostile(args, out, sc, where)
+
+
 # -- bus latency: raw frames ping-pong between two processes (was bench_vcan_latency.py)
 # -- allocator against linprog (was bench_allocator.py)
 
@@ -333,7 +346,8 @@ def run_bench(args) -> dict[str, Any]:
              ("allocator", lambda: {**compare_allocator(args.vehicle, args.alloc_ticks),
                                     "where": {**where_here(), "sched": sched_policy(),
                                               "clock": "CLOCK_MONOTONIC (perf_counter)"}}),
-             ("load", lambda: bus_load_figures(args.bitrate))]
+             ("load", lambda: bus_load_figures(args.bitrate)),
+             ("hostile", lambda: measure_hostile_part(args, out / "hostile"))]
     hogs = CpuHogs((os.cpu_count() or 1) if args.stress else 0)
     with hogs:
         host["stress_procs"], host["stress_pids"] = len(hogs.procs), hogs.pids
@@ -370,11 +384,16 @@ def _check_args(args) -> None:
         args.bitrate = BITRATE_BPS
     for name, value, lo in (("--duration", args.duration, 2.0),
                             ("--lockstep-duration", args.lockstep_duration, 1.0),
+                            ("--hostile-duration", args.hostile_duration, 2.0),
                             ("--pings", args.pings, 10), ("--alloc-ticks", args.alloc_ticks, 10),
                             ("--bitrate", args.bitrate, 1)):
         if not (math.isfinite(value) and value >= lo):
             raise UsageError(f"hil bench: {name}: expected a finite number >= {lo:g}, got "
                              f"{value:g}")
+    if "hostile" in args.parts:
+        from hil.hostile import parse_loads
+
+        parse_loads(args.hostile_loads)
     from hil.config import VEHICLE_DIR
 
     if not (VEHICLE_DIR / f"{args.vehicle}.yaml").exists():
@@ -410,7 +429,8 @@ def _cmd_bench(args) -> int:
             str(args.duration), "--lockstep-duration", str(args.lockstep_duration),
             "--vehicle", args.vehicle, "--pings", str(args.pings), "--alloc-ticks",
             str(args.alloc_ticks), "--bitrate", str(args.bitrate), "--parts",
-            ",".join(args.parts), "--channel", args.channel]
+            ",".join(args.parts), "--channel", args.channel, "--hostile-loads",
+            args.hostile_loads, "--hostile-duration", str(args.hostile_duration)]
     argv += ["--stress"] * bool(args.stress) + ["--rt"] * bool(args.rt) + \
         ["--no-plots"] * bool(args.no_plots)
     rc = _maybe_in_uml(args, argv)
@@ -449,8 +469,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="LP problems for the allocator comparison")
     p.add_argument("--bitrate", type=int, default=None,
                    help="bit rate for the bus load (default the catalog's)")
-    p.add_argument("--parts", default=",".join(PARTS),
-                   help=f"comma list of the parts to measure (default {','.join(PARTS)})")
+    p.add_argument("--parts", default=",".join(DEFAULT_PARTS),
+                   help=f"comma list of the parts to measure, of {','.join(PARTS)} (default "
+                        f"{','.join(DEFAULT_PARTS)})")
+    p.add_argument("--hostile-loads", default=",".join(DEFAULT_HOSTILE_LOADS),
+                   metavar="LOAD,...",
+                   help="hostile part: none or CLASS:RATE (frames/s) per run; CLASS one of "
+                        f"{', '.join(FLOOD_CLASSES)} (default: {','.join(DEFAULT_HOSTILE_LOADS)})")
+    p.add_argument("--hostile-duration", type=float, default=20.0,
+                   help="hostile part: seconds of each real-time run (default 20)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--interface", default="socketcan", help=argparse.SUPPRESS)
     p.add_argument("--channel", default="vcan0", help="SocketCAN channel (default vcan0)")
@@ -467,6 +494,8 @@ def register(sub) -> None:
   hil bench                              every part, orel, 60 s (a few minutes)
   hil bench --parts bus                  vcan0 one way / round trip only
   hil bench --duration 20 --stress --rt  a short run under CPU load, SCHED_FIFO asked
+  hil bench --parts hostile              floods, forged and replayed frames, per class and rate
+  hil bench --parts hostile --hostile-loads none,catalog-bad-crc:500 --hostile-duration 15
 
 It prints one table and writes runs/bench/bench.json and histograms; exit 0 when every
 figure was measured (goals not met are shown, not failed).""")

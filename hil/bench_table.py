@@ -8,7 +8,10 @@ import math
 from collections.abc import Iterable
 from typing import Any
 
-PARTS = ("realtime", "lockstep", "bus", "allocator", "load")
+PARTS = ("realtime", "lockstep", "bus", "allocator", "load", "hostile")
+# What ``hil bench`` measures without ``--parts``: the hostile campaign (hil.hostile, several
+# minutes of runs under floods) only when asked for.
+DEFAULT_PARTS = PARTS[:-1]
 GOALS = (
     # (text, key path in the report, limit): shown as met or not met, never asserted
     ("release jitter p99 < 1 ms", ("realtime", "release_jitter_ms", "p99"), 1.0),
@@ -47,7 +50,7 @@ def goals(report: dict) -> list[dict[str, Any]]:
     return out
 
 
-def check_figures(report: dict, parts: Iterable[str] = PARTS) -> list[str]:
+def check_figures(report: dict, parts: Iterable[str] = DEFAULT_PARTS) -> list[str]:
     """Every figure present, finite, non-negative and ordered; one line per problem.
 
     What the CI smoke run asserts: the bench measured everything and nothing is absurd. No
@@ -124,6 +127,10 @@ def check_figures(report: dict, parts: Iterable[str] = PARTS) -> list[str]:
         ld = report.get("bus_load") or {}
         num("bus_load.fraction", ld.get("fraction"), hi=1.0)
         num("bus_load.bitrate_bps", ld.get("bitrate_bps"), lo=1)
+    if "hostile" in parts:
+        from hil.hostile import check_rows
+
+        problems += check_rows(report)
     return problems
 
 
@@ -226,6 +233,11 @@ def format_table(report: dict) -> str:
         text("bus load from the catalog",
              f"{ld['total_bps']:.0f} bit/s = {100 * ld['fraction']:.2f} % of "
              f"{ld['bitrate_bps'] / 1e6:g} Mbit/s")
+    host = report.get("hostile")
+    if host:
+        from hil.hostile import format_rows
+
+        lines += format_rows({**host, "where_text": _where_text(host.get("where"))})
     gl = report.get("goals")
     if gl:
         lines.append("goals of issue 7 (information, not a verdict):")

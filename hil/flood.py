@@ -1,40 +1,159 @@
 """`hil flood`: a hostile third node on the bus (docs/hostile-bus.md).
 
-``hil flood --class foreign|catalog-bad-crc|catalog-forged --rate HZ --seconds S`` sends
-frames at ``rate`` per second for ``seconds`` (0: until stopped) on ``--interface`` /
-``--channel`` (vcan0 by default), in bursts of one millisecond's worth (``sendmmsg`` on
-SocketCAN), seeded by ``--seed``:
+``hil flood --class CLASS --rate HZ --seconds S`` sends frames at ``rate`` per second for
+``seconds`` (0: until stopped) on ``--interface`` / ``--channel`` (vcan0 by default), in
+bursts of one millisecond's worth (``sendmmsg`` on SocketCAN), seeded by ``--seed``:
 
 * ``foreign``: identifiers that are not in the catalog, random payloads;
 * ``catalog-bad-crc``: the catalog's identifiers with random payloads whose E2E CRC is made
   wrong on purpose (every one is rejected as ``bad_crc``);
 * ``catalog-forged``: the catalog's identifiers with a valid E2E CRC and alive counter over a
-  random payload: what corruption checks cannot stop (authentication, docs/hostile-bus.md).
+  random payload: what corruption checks cannot stop;
+* ``forged``: whole THR_CMD sets ("every thruster full on", the next tick) and FAULT_CMD sets
+  ("stuck on" of thruster 0) with a valid E2E CRC and the alive counter that follows the
+  genuine sender's, each followed by an authenticator with a wrong MAC or by none (in turn):
+  they pass every E2E check and must stop at authentication (``auth_fail``,
+  ``auth_missing``);
+* ``replay``: the newest authentic THR_CMD set heard on the bus with its authenticator, sent
+  again with fresh E2E counters: the MAC verifies and only its freshness stops it
+  (``auth_replay``).
 
-It prints the frames sent and the rate reached. Used by the flood measurements (and by hand
-next to ``hil up``); it is a test tool, not part of a run.
+``forged`` and ``replay`` listen to the bus (``Listener``: alive counters, the newest tick,
+the thruster count, the newest authentic set). The flood prints the frames sent and the rate
+reached (``--json``: one JSON line, with the frames sent per identifier). Used by
+``hil bench --parts hostile`` (``hil.hostile``), its CI test and by hand next to ``hil up``;
+it is a test tool, not part of a run.
 """
 
 from __future__ import annotations
 
+import json
 import signal
 import sys
 import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
 
 import can
 import numpy as np
 
 from bus import e2e
-from bus.catalog import CATALOG
-from bus.codec import Frame
-from bus.transport import BusConfig, FrameBus, open_bus, to_can_message
+from bus.catalog import (
+    ALLOWED_ON_QUANTA,
+    CATALOG,
+    FAULT_CMD_IDS,
+    THR_CMD_IDS,
+    FaultAction,
+    FaultKind,
+)
+from bus.codec import FaultCmd, FaultCmdMac, Frame, ThrCmd, ThrCmdMac, encode
+from bus.secoc import fault_freshness
+from bus.transport import BusConfig, FrameBus, from_can_message, open_bus, to_can_message
 from hil.argtypes import number
 
-CLASSES = ("foreign", "catalog-bad-crc", "catalog-forged")
+CLASSES = ("foreign", "catalog-bad-crc", "catalog-forged", "forged", "replay")
+LISTENING = ("forged", "replay")  # the classes that listen to the bus first
+THR_CMD_MAC_ID = CATALOG.frame("THR_CMD_MAC").frame_id
+FAULT_CMD_MAC_ID = CATALOG.frame("FAULT_CMD_MAC").frame_id
+SECURED_IDS = (*THR_CMD_IDS, THR_CMD_MAC_ID, *FAULT_CMD_IDS, FAULT_CMD_MAC_ID)
+DEFAULT_THRUSTERS = 12  # a forged THR_CMD's size before a genuine one was heard
+# A receive filter nothing on the bus matches (an extended identifier nobody sends): the
+# classes that do not listen leave the kernel no queue to fill.
+DEAF = [{"can_id": 0x1FFFFFFF, "can_mask": 0x1FFFFFFF, "extended": True}]
 
 
-def make_frames(kind: str, n: int, rng: np.random.Generator, protector: e2e.Protector) -> list:
-    """``n`` frames of class ``kind`` (see the module doc)."""
+class Listener:
+    """What a hostile node learns by listening to THR_CMD and FAULT_CMD: the last alive
+    counter of each identifier, the newest THR_CMD tick, its thruster count, manifold mask and
+    gyro sample, and the newest authentic THR_CMD set with its authenticator (frames as
+    sent)."""
+
+    def __init__(self) -> None:
+        self.counter: dict[int, int] = {}
+        self.tick: int | None = None
+        self.n_thr = DEFAULT_THRUSTERS
+        self.manifolds = 0xF
+        self.gyro_seq = 0
+        self.authentic: list[Frame] = []
+        self._set: list[Frame] = []
+
+    def see(self, fr: Frame) -> None:
+        fid = fr.arbitration_id
+        if fid not in SECURED_IDS or len(fr.data) != 8:
+            return
+        self.counter[fid] = e2e.counter_of(fr.data)
+        if fid in THR_CMD_IDS:
+            if fid == THR_CMD_IDS[0]:
+                self._set = []
+            self._set.append(fr)
+        elif fid == THR_CMD_MAC_ID and self._set:
+            self.authentic = [*self._set, fr]
+            self._learn(self._set)
+            self._set = []
+
+    def _learn(self, frames: list[Frame]) -> None:
+        from bus.codec import decode
+
+        try:
+            cmd = decode([Frame(f.arbitration_id, f.data) for f in frames])
+        except Exception:  # noqa: BLE001 - a set we cannot read teaches nothing
+            return
+        if isinstance(cmd, ThrCmd):
+            self.tick, self.n_thr = cmd.tick, len(cmd.on_quanta)
+            self.manifolds, self.gyro_seq = cmd.manifold_enable, cmd.gyro_seq
+
+    def next_counter(self, fid: int) -> int:
+        """The alive counter that follows the last one on ``fid`` (and remember it: the
+        receivers saw it)."""
+        c = (self.counter.get(fid, -1) + 1) % e2e.COUNTER_MODULO
+        self.counter[fid] = c
+        return c
+
+    def protect(self, frames: list[Frame]) -> list[Frame]:
+        """``frames`` with the E2E counter that follows the genuine sender's and a valid CRC
+        (what a receiver's E2E check cannot tell from the genuine sender)."""
+        return [Frame(f.arbitration_id,
+                      e2e.protect(CATALOG.by_id[f.arbitration_id].data_id, f.data,
+                                  self.next_counter(f.arbitration_id)))
+                for f in frames]
+
+
+def forged_group(k: int, rng: np.random.Generator, heard: Listener) -> list[Frame]:
+    """Group ``k`` of the ``forged`` class: even k a THR_CMD, odd k a FAULT_CMD, each with a
+    wrong authenticator (k % 4 < 2) or none."""
+    if k % 2 == 0:
+        tick = 0 if heard.tick is None else heard.tick + 1
+        msg: Any = ThrCmd(tick, (max(ALLOWED_ON_QUANTA),) * heard.n_thr, heard.manifolds,
+                          heard.gyro_seq)
+        mac: Any = ThrCmdMac(tick & 0xFF, tick & 0xFFFF, int(rng.integers(0, 1 << 24)))
+    else:
+        rid = int(rng.integers(0, 256))
+        msg = FaultCmd(rid, FaultAction.INJECT, FaultKind.STUCK_ON, 0, 1.0, 0.0, None)
+        mac = FaultCmdMac(rid, fault_freshness(time.time()) & 0xFFFF,
+                          int(rng.integers(0, 1 << 24)))
+    frames = encode(msg) + (encode(mac) if k % 4 < 2 else [])
+    return heard.protect(frames)
+
+
+def make_frames(kind: str, n: int, rng: np.random.Generator, protector: e2e.Protector,
+                heard: Listener | None = None, k0: int = 0) -> list:
+    """About ``n`` frames of class ``kind`` (see the module doc): exactly ``n`` for the
+    random classes, whole groups for ``forged`` and ``replay`` (none to replay before an
+    authentic set was heard). ``k0``: the number of the first group (``forged``)."""
+    if kind in LISTENING:
+        heard = heard or Listener()
+        out: list[Frame] = []
+        k = k0
+        while len(out) < n:
+            if kind == "forged":
+                out += forged_group(k, rng, heard)
+            elif heard.authentic:
+                out += heard.protect(heard.authentic)
+            else:
+                break
+            k += 1
+        return out
     cat_ids = [f.frame_id for f in CATALOG.frames]
     known = set(cat_ids)
     data = rng.integers(0, 256, size=(n, 8), dtype=np.uint8)
@@ -54,33 +173,65 @@ def make_frames(kind: str, n: int, rng: np.random.Generator, protector: e2e.Prot
     return out
 
 
+def _listen(bus: can.BusABC, heard: Listener) -> None:
+    """Take what is queued for us (never waits)."""
+    if isinstance(bus, FrameBus):
+        got: list = []
+        bus.drain_frames(0.0, got, limit=512)
+        for fr, _ in got:
+            heard.see(fr)
+        return
+    for _ in range(512):
+        m = bus.recv(0.0)
+        if m is None:
+            return
+        heard.see(from_can_message(m))
+
+
 def flood(kind: str, rate_hz: float, seconds: float, interface: str, channel: str,
-          seed: int, stop=lambda: False) -> tuple[int, float]:
-    """Send the flood; returns (frames sent, seconds taken)."""
+          seed: int, stop: Callable[[], bool] = lambda: False) -> dict[str, Any]:
+    """Send the flood; returns what was sent: ``{"class", "rate_hz", "sent", "seconds",
+    "rate_reached_hz", "groups", "by_id": {frame id: frames}}``."""
+    if kind not in CLASSES:
+        raise ValueError(f"flood: class: expected one of {', '.join(CLASSES)}, got {kind!r}")
     rng = np.random.default_rng(seed)
     protector = e2e.Protector()
-    bus = open_bus(BusConfig(interface=interface, channel=channel))
+    heard = Listener()
+    filters = ([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in SECURED_IDS]
+               if kind in LISTENING else DEAF)
+    bus = open_bus(BusConfig(interface=interface, channel=channel,
+                             kwargs={"can_filters": filters}))
     burst_s = 0.001
     sent = 0
+    groups = 0
+    by_id: Counter[int] = Counter()
     t0 = time.monotonic()
     owed = 0.0
     try:
         t_next = t0
         while not stop() and (seconds <= 0 or time.monotonic() - t0 < seconds):
-            owed += rate_hz * burst_s
+            if kind in LISTENING:
+                _listen(bus, heard)
+            owed = min(owed + rate_hz * burst_s, max(rate_hz * 0.01, 8.0))
             n = int(owed)
-            owed -= n
             if n:
-                frames = make_frames(kind, n, rng, protector)
+                frames = make_frames(kind, n, rng, protector, heard, groups)
+                owed -= len(frames)
+                if kind in LISTENING:
+                    groups += sum(f.arbitration_id in (THR_CMD_IDS[0], FAULT_CMD_IDS[0])
+                                  for f in frames)
                 if isinstance(bus, FrameBus):
-                    sent += bus.send_frames(frames)
+                    k = bus.send_frames(frames)
+                    sent += k
+                    by_id.update(f.arbitration_id for f in frames[:k])
                 else:
                     for f in frames:
                         try:
                             bus.send(to_can_message(f))
-                            sent += 1
                         except (can.CanError, OSError):
-                            pass
+                            continue
+                        sent += 1
+                        by_id[f.arbitration_id] += 1
             t_next += burst_s
             delay = t_next - time.monotonic()
             if delay > 0:
@@ -89,16 +240,23 @@ def flood(kind: str, rate_hz: float, seconds: float, interface: str, channel: st
                 t_next = time.monotonic()  # cannot keep up: do not build a burst
     finally:
         bus.shutdown()
-    return sent, time.monotonic() - t0
+    took = time.monotonic() - t0
+    return {"class": kind, "rate_hz": rate_hz, "sent": sent, "seconds": round(took, 3),
+            "rate_reached_hz": round(sent / max(took, 1e-9), 1), "groups": groups,
+            "by_id": {str(k): v for k, v in sorted(by_id.items())}}
 
 
 def _cmd(args) -> int:
     stopped = []
     for sig in (signal.SIGINT, signal.SIGTERM):  # stop cleanly and say what was sent
         signal.signal(sig, lambda *_: stopped.append(True))
-    sent, took = flood(args.kind, args.rate, args.seconds, args.interface, args.channel,
-                       args.seed, stop=lambda: bool(stopped))
-    print(f"flood {args.kind}: {sent} frames in {took:.1f} s ({sent / max(took, 1e-9):.0f}/s)")
+    res = flood(args.kind, args.rate, args.seconds, args.interface, args.channel, args.seed,
+                stop=lambda: bool(stopped))
+    if args.json:
+        print(json.dumps(res), flush=True)
+    else:
+        print(f"flood {args.kind}: {res['sent']} frames in {res['seconds']:.1f} s "
+              f"({res['rate_reached_hz']:.0f}/s)", flush=True)
     return 0
 
 
@@ -110,6 +268,8 @@ def register(sub) -> None:
     p.add_argument("--seconds", type=number(ge=0, le=86_400), default=10.0,
                    help="how long (0: until interrupted)")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--json", action="store_true",
+                   help="print what was sent as one JSON line (frames per identifier too)")
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")
     p.set_defaults(func=_cmd)

@@ -15,7 +15,15 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from bus.catalog import CATALOG, AckReason, AckStatus, FaultAction, GyroStatus, NodeState
+from bus.catalog import (
+    CATALOG,
+    ON_QUANTUM_MS,
+    AckReason,
+    AckStatus,
+    FaultAction,
+    GyroStatus,
+    NodeState,
+)
 from bus.catalog import Node as NodeId
 from bus.codec import FaultAck, FaultCmd, Gyro, ThrCmd
 from bus.protocol import CommandLost, DeadlineMissed, HeartbeatSender, PlantLockstep
@@ -74,6 +82,7 @@ class PlantShell:
         # (GyroStatus.CMD_NOT_APPLIED) and the flight keeps that tick out of its evidence.
         self.cmd_applied = True
         self.last_applied: ThrCmd | None = None
+        self.applied_as_sent: list[list[int]] = []  # [tick, on ms] since the last record
         self.held_ticks = 0  # ticks in a row the last command was repeated (thr_cmd_missing hold)
         self.rec = JsonlWriter(out / "plant.jsonl")
         self.events: list[str] = []
@@ -179,7 +188,9 @@ class PlantShell:
                 self.gyro_pub.pop(k, None)
         return out
 
-    def apply(self, cmd: ThrCmd, t_apply_s: float) -> None:
+    def apply(self, cmd: ThrCmd, t_apply_s: float, as_sent: bool = True) -> None:
+        """Apply ``cmd`` from ``t_apply_s``; ``as_sent``: the command as received (False: a
+        held one under a new tick number)."""
         on_ms, mask = plant_command(cmd, self.n_man)
         if on_ms.shape[0] != self.n_thr:
             self.events.append(f"THR_CMD rejected: {on_ms.shape[0]} thrusters, "
@@ -188,6 +199,8 @@ class PlantShell:
         self.plant.apply_command(cmd.tick, t_apply_s, on_ms, mask)
         self.last_cmd_tick_s = t_apply_s
         self.last_applied = cmd
+        if as_sent:
+            self.applied_as_sent.append([int(cmd.tick), ON_QUANTUM_MS * int(sum(cmd.on_quanta))])
 
     def dropped_command(self, cmd: ThrCmd, verdict: str, rx_s: float,
                         t_sample_s: float | None) -> None:
@@ -244,6 +257,8 @@ class PlantShell:
             rec.update(extra)
         if self.gate is not None:
             rec["command_gate"] = dict(self.gate.counts)
+        if self.applied_as_sent:
+            rec["thr_cmd_applied"], self.applied_as_sent = self.applied_as_sent, []
         write_record(self, rec)
 
     # -- lockstep -------------------------------------------------------------------------
@@ -298,7 +313,8 @@ class PlantShell:
                     self.cmd_applied = True
                     self.held_ticks = 0
             elif res is not None and not self.safe:
-                self.apply(self.missing_command(n, res.command), self.plant.apply_time(t_n))
+                self.apply(self.missing_command(n, res.command), self.plant.apply_time(t_n),
+                           as_sent=False)
             self.plant.advance_to(t_n + self.h)
             extra = {"rt_factor": round((t_n + self.h) / max(time.monotonic() - t_wall0, 1e-9), 2),
                      "sync_to_cmd_s": latency, "deadline_misses": lock.deadline_misses}
@@ -361,7 +377,7 @@ class PlantShell:
                     self.held_ticks < self.safety.thr_cmd_lost_ticks - 1 and \
                     now - self.last_cmd_tick_s >= self.h + THR_CMD_DEADLINE_S:
                 held = self.missing_command(self.last_applied.tick + 1, self.last_applied)
-                self.apply(held, now + cmd_latency)
+                self.apply(held, now + cmd_latency, as_sent=False)
             # Publish first: the flight is waiting for this sample.
             ready = self.plant.gyro_samples_until(now)
             if ready:

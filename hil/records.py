@@ -73,6 +73,10 @@ class PlantRecord(TruthFields):
     # fresh / stale / out_of_order / unknown_sample, counted since the start
     command_gate: NotRequired[dict[str, int]]
     bus: NotRequired[dict[str, int]]
+    # THR_CMD applied as received during this tick, [tick, total on-time ms] each (not the
+    # held or safe ones): compared with the flight's ``thr_cmd_on_ms``, a command the flight
+    # never sent shows (``hil.hostile.forged_used``)
+    thr_cmd_applied: NotRequired[list[list[int]]]
     # The last line only: the loop's wall and CPU time, when it started (CLOCK_MONOTONIC).
     final: NotRequired[bool]
     wall_s: NotRequired[float]

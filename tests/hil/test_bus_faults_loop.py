@@ -16,6 +16,7 @@ from pathlib import Path
 
 from hil.config import load_scenario
 from hil.flight_shell import FlightShell
+from hil.hostile import forged_used
 from hil.node_settings import parse_settings
 from hil.node_shell import open_port
 from hil.plant_shell import PlantShell
@@ -208,6 +209,8 @@ def test_forged_fault_and_thruster_commands_change_nothing_with_secoc(tmp_path):
     assert s["bus"]["flight"]["auth_missing"] > 5  # the flight hears FAULT_CMD too
     assert not any("fault injected" in e for r in precs for e in r.get("events", []))
     assert any("without its authenticator" in e for r in precs for e in r.get("events", []))
+    used = forged_used(s, precs, frecs)  # every command applied is one the flight sent
+    assert used["fault_cmd"] == used["thr_cmd"] == 0 and used["thr_cmd_applied"] >= 10
     key_text = (tmp_path / "run" / "secoc.key").read_text().strip()
     for f in (tmp_path / "run").iterdir():  # the key is in its file only
         assert f.name == "secoc.key" or key_text not in f.read_text(errors="replace")

@@ -1,12 +1,16 @@
 """`hil flood` frames: each class is what it says to a receiver (independent oracle: the
-receiver's classification)."""
+receiver's classification and the SecOC check of ``bus.secoc``)."""
 
 import numpy as np
 
 from bus import e2e
-from bus.catalog import CATALOG
+from bus.catalog import CATALOG, FAULT_CMD_IDS, THR_CMD_IDS
+from bus.codec import ThrCmd, encode
 from bus.receiver import Receiver
-from hil.flood import flood, make_frames
+from bus.secoc import Authenticator
+from hil.flood import Listener, flood, make_frames
+
+KEY = bytes(range(32))
 
 
 def test_each_class_is_classified_as_it_claims():
@@ -24,6 +28,70 @@ def test_each_class_is_classified_as_it_claims():
     assert rx.counters["bad_crc"] == 0  # valid CRCs: only authentication can refuse them
 
 
-def test_flood_over_virtual_reaches_its_rate():
-    sent, took = flood("foreign", 2000, 0.5, "virtual", "t_flood", 1)
-    assert 0.45 < took < 1.5 and 700 < sent <= 1100
+class _Genuine:
+    """A genuine flight's THR_CMD with its authenticator, as a port sends them."""
+
+    def __init__(self) -> None:
+        self.protector = e2e.Protector()
+        self.auth = Authenticator(KEY)
+
+    def frames(self, tick: int) -> list:
+        out = []
+        msg = ThrCmd(tick, (0, 5, 0, 0, 3, 0), 0x3, tick)
+        mac = self.auth.sign(msg, 0.0)
+        for m in (msg, mac):
+            for fr in encode(m):
+                f_def = CATALOG.by_id[fr.arbitration_id]
+                out.append(type(fr)(fr.arbitration_id,
+                                    self.protector.protect(f_def.data_id, fr.data)))
+        return out
+
+
+def _receive(rx: Receiver, auth: Authenticator, frames: list, now: float) -> list:
+    msgs = [(v.message, now) for v in (rx.classify(f, now) for f in frames)
+            if v.message is not None]
+    return auth.accept(msgs, now)
+
+
+def test_forged_frames_pass_e2e_and_stop_at_authentication():
+    genuine, rx, auth = _Genuine(), Receiver(), Authenticator(KEY)
+    heard = Listener()
+    for tick in range(3):
+        frames = genuine.frames(tick)
+        for f in frames:
+            heard.see(f)
+        assert len(_receive(rx, auth, frames, tick * 0.2)) == 1
+    assert (heard.tick, heard.n_thr, heard.manifolds) == (2, 6, 0x3)
+    forged = make_frames("forged", 40, np.random.default_rng(1), e2e.Protector(), heard)
+    assert {f.arbitration_id for f in forged} >= {THR_CMD_IDS[0], FAULT_CMD_IDS[0]}
+    used = _receive(rx, auth, forged, 0.6)
+    auth.expire(5.0)  # the forgeries without an authenticator are missing by now
+    assert used == []
+    bad = {k: v for k, v in rx.counts().items() if k in ("bad_crc", "counter_jump",
+                                                          "repeated_counter", "unknown_id")}
+    assert not any(bad.values()), bad  # every forged frame passed the E2E checks
+    assert auth.counts["auth_fail"] > 0 and auth.counts["auth_missing"] > 0
+    assert auth.counts["auth_ok"] == 3
+
+
+def test_replayed_authentic_sets_are_refused_by_freshness():
+    genuine, rx, auth = _Genuine(), Receiver(), Authenticator(KEY)
+    heard = Listener()
+    assert make_frames("replay", 10, np.random.default_rng(1), e2e.Protector(), heard) == []
+    frames = genuine.frames(7)
+    for f in frames:
+        heard.see(f)
+    assert len(_receive(rx, auth, frames, 1.4)) == 1
+    replay = make_frames("replay", 20, np.random.default_rng(1), e2e.Protector(), heard)
+    assert len(replay) >= 20 and len(replay) % len(frames) == 0
+    assert [f.data[2:] for f in replay[: len(frames)]] == [f.data[2:] for f in frames]
+    assert _receive(rx, auth, replay, 1.5) == []
+    assert auth.counts["auth_replay"] == len(replay) // len(frames)
+    assert rx.counts()["bad_crc"] == 0 and rx.counts()["repeated_counter"] == 0
+
+
+def test_flood_over_virtual_reaches_its_rate_and_counts_by_identifier():
+    res = flood("foreign", 2000, 0.5, "virtual", "t_flood", 1)
+    assert 0.45 < res["seconds"] < 1.5 and 700 < res["sent"] <= 1100
+    assert sum(res["by_id"].values()) == res["sent"]
+    assert not set(map(int, res["by_id"])) & {f.frame_id for f in CATALOG.frames}
