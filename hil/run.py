@@ -34,6 +34,7 @@ import yaml
 from hil.argtypes import number
 from hil.config import MAX_DURATION_S, REPO_ROOT, load_scenario
 from hil.errors import BusError, UsageError
+from hil.lcm_replay import LOG_NAME
 from hil.panel_bridge import control_dir, request_stop, stop_path
 from hil.recorder import RrdRecorder, build_rrd, merge_by_tick, read_jsonl
 from hil.secoc_key import KEY_FILE, new_key_file
@@ -295,7 +296,7 @@ def maybe_in_netns(args, argv: list[str]) -> int | None:
     return run_in_namespace(argv, args.telemetry, cwd=os.getcwd())
 
 
-LCM_LOG = "run.lcmlog"
+LCM_LOG = LOG_NAME  # DIR/run.lcmlog (hil.lcm_replay reads it back)
 RUN_END_CHANNEL = "HIL_RUN_END"
 LOGGER_FLUSH_MS = 100
 
