@@ -252,11 +252,21 @@ def resolve_bus(args, sc=None) -> None:
         kind = cfg_bus.kind
         url = url or cfg_bus.url
     if kind == "lcm":
+        # --interface / --channel name a python-can bus: over LCM they would be ignored.
+        # (Interface ``lcm`` is how a re-run in a namespace or user-mode Linux carries LCM.)
+        for flag, val in (("--interface", args.interface), ("--channel", args.channel)):
+            if val is not None and args.interface != "lcm":
+                raise UsageError(f"{flag}: expected no python-can {flag[2:]} with the lcm bus "
+                                 f"(--lcm-url names its provider), got {val!r}")
         args.interface, args.channel = "lcm", url or DEFAULT_URL
     elif url is not None and not (getattr(args, "telemetry", None)
                                   or getattr(args, "lcm_log", False)):
-        raise UsageError(f"--lcm-url: expected it with --bus lcm, --telemetry or --lcm-log, "
-                         f"got {url!r} with the {kind or 'can'} bus alone")
+        with_ = ("--bus lcm, --telemetry or --lcm-log" if hasattr(args, "telemetry")
+                 else "--bus lcm")
+        raise UsageError(f"--lcm-url: expected it with {with_}, got {url!r} with the "
+                         f"{kind or 'can'} bus alone")
+    args.interface = args.interface or "socketcan"
+    args.channel = args.channel or "vcan0"
     # Telemetry (hil.telemetry): always over an LCM bus, on request over CAN.
     if args.interface == "lcm":
         args.telemetry = args.channel
@@ -784,9 +794,9 @@ def _bus_args(p) -> None:
     p.add_argument("--rt", dest="rt_priority", action="store_true",
                    help="ask SCHED_FIFO and locked memory for flight (50) and plant (40); the "
                         "nodes say in their first events what they got")
-    p.add_argument("--interface", default="socketcan",
+    p.add_argument("--interface",
                    help="python-can interface (default socketcan; udp_multicast, pcan, ...)")
-    p.add_argument("--channel", default="vcan0", help="bus channel (default vcan0)")
+    p.add_argument("--channel", help="bus channel (default vcan0)")
     p.add_argument("--bus", choices=("can", "lcm"),
                    help="the bus: can (python-can --interface/--channel, the default) or lcm "
                         "(docs/lcm.md; default: the scenario's bus:, else can)")

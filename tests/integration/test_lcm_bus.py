@@ -252,11 +252,35 @@ def test_the_log_replayed_gives_the_records_recording_and_report(lcm_run, tmp_pa
 
 
 def test_reference_scenario_over_lcm_has_its_verdict(url, tmp_path):
-    """S000-nofire (a reference scenario) in lockstep over LCM: its expectations met, the
-    verdict the reference tier asserts over vcan."""
-    s = _run([str(REPO / "configs/scenarios/S000-nofire.yaml"), "--bus", "lcm",
-              "--lcm-url", url], tmp_path / "ls")
+    """S000-nofire (a reference scenario) through `hil run-all --bus lcm`, in lockstep over
+    LCM: its expectations met, the verdict the reference tier asserts over vcan, and the
+    report of the set."""
+    r = subprocess.run([*HIL, "run-all", "--bus", "lcm", "--lcm-url", url, "--only",
+                        "S000-nofire", "--out", str(tmp_path / "all")], capture_output=True,
+                       text=True, cwd=REPO, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "run-all: every expectation holds" in r.stdout
+    s = json.loads((tmp_path / "all/S000-nofire/summary.json").read_text())
+    assert (s["bus_kind"], s["lcm_url"], s["mode"]) == ("lcm", url, "lockstep")
     assert s["verdict"] == "passed" and s["expectations_met"], s["expectation_failures"]
+    rows = json.loads((tmp_path / "all/report/report.json").read_text())["rows"]
+    assert [(x["scenario"], x["correct"]) for x in rows] == [("S000-nofire", True)]
+
+
+def test_campaign_sample_over_lcm_agrees_with_in_process(tmp_path):
+    """`hil campaign --bus lcm`: a sampled run over LCM detects what the in-process run
+    did (the same comparison `--bus` makes over vcan)."""
+    text = (REPO / "configs/campaigns/ci-generic.yaml").read_text()
+    c = tmp_path / "c.yaml"
+    c.write_text(text.replace("runs: 24", "runs: 2") + "bus_sample: 1\n")
+    out = tmp_path / "out"
+    r = subprocess.run([*HIL, "campaign", str(c), "--workers", "1", "--out", str(out),
+                        "--no-progress", "--bus", "lcm"], capture_output=True, text=True,
+                       cwd=REPO, timeout=600)
+    assert "bus: 1/1 sampled runs agree with the in-process result" in r.stdout, (
+        r.stdout + r.stderr)
+    [res] = json.loads((out / "bus.json").read_text())
+    assert res["agree"] and res["bus_kind"] == "lcm"
 
 
 def test_real_time_over_lcm_detects_the_fault(url, tmp_path):
