@@ -278,8 +278,11 @@ def resolve_bus(args, sc=None) -> None:
 
 
 def _lcm_argv(args) -> list[str]:
-    """The telemetry flags for a re-run (namespace, user-mode Linux)."""
+    """The bus and telemetry flags for a re-run (namespace, user-mode Linux): an LCM run goes
+    as interface ``lcm`` with its URL as the channel; a CAN run says ``--bus can``, so that a
+    scenario naming LCM is not turned back to it there."""
     out = ["--telemetry", args.telemetry] if args.telemetry and args.interface != "lcm" else []
+    out += ["--bus", "can"] if args.interface != "lcm" else []
     return out + (["--lcm-log"] if getattr(args, "lcm_log", False) else [])
 
 

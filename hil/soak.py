@@ -158,7 +158,7 @@ def _cmd_soak(args) -> int:
     resolve_bus(args, load_scenario(scenario))  # --bus, else the scenario's bus:, else can
     argv = ["soak", "--hours", str(args.hours), "--mode", args.mode, "--out", str(out),
             "--sample-s", str(args.sample_s), "--interface", args.interface,
-            "--channel", args.channel]
+            "--channel", args.channel] + (["--bus", "can"] if args.interface != "lcm" else [])
     argv += ["--scenario", str(Path(args.scenario).resolve())] if args.scenario else \
         ["--vehicle", args.vehicle]
     rc = maybe_in_netns(args, argv)  # LCM: a private network namespace (hil.netns)

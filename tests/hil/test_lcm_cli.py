@@ -59,6 +59,13 @@ def test_the_bus_a_run_resolves_to(tmp_path):
     a = _args(bus="can")  # the command line wins over the scenario
     resolve_bus(a, sc)
     assert (a.interface, a.channel, a.telemetry) == ("socketcan", "vcan0", None)
+    # ... also in the re-run (namespace, user-mode Linux), which gets the resolved bus
+    from hil.run import _lcm_argv
+
+    assert _lcm_argv(a) == ["--bus", "can"]
+    again = _args(bus="can", interface="socketcan", channel="vcan0")
+    resolve_bus(again, sc)
+    assert again.interface == "socketcan"
     a = _args(lcm_log=True)  # a CAN run with its telemetry on the default URL
     resolve_bus(a, load_scenario(S000))
     assert (a.interface, a.telemetry) == ("socketcan", DEFAULT_URL)
