@@ -371,6 +371,9 @@ def _lcm_log_source(args, out: Path) -> tuple[int | None, Callable[[Path], Any] 
                 raise UsageError(f"report: {flag}: expected it with --from-lcm-log, got "
                                  f"{val!r} without it")
         return None, None
+    if args.no_plots:
+        raise UsageError("report: --from-lcm-log: expected it with the plots (the log's data "
+                         "feeds only them; the table is summary.json's), got --no-plots")
     from bus.lcm_transport import DEFAULT_URL
     from hil.lcm_replay import LOG_NAME, count_log, replay
     from hil.netns import run_in_namespace
@@ -382,7 +385,7 @@ def _lcm_log_source(args, out: Path) -> tuple[int | None, Callable[[Path], Any] 
         read_summary(d)
         count_log(d / LOG_NAME)  # one line before the namespace
     argv = ["report", *[str(d.resolve()) for d in dirs], "--out", str(out.resolve()),
-            "--from-lcm-log", "--lcm-url", url] + ["--no-plots"] * bool(args.no_plots)
+            "--from-lcm-log", "--lcm-url", url]
     rc = run_in_namespace(argv + (["--speed", repr(speed)] if speed else []), url)
     return rc, lambda d: replay(d / LOG_NAME, url, speed=speed)
 

@@ -99,6 +99,11 @@ def test_report_options_of_the_log_need_it(tmp_path, capsys):
     assert hil_main(["report", str(run), "--out", str(tmp_path / "r"), "--speed", "2"]) == 2
     assert capsys.readouterr().err.strip() == (
         "error: report: --speed: expected it with --from-lcm-log, got 2.0 without it")
+    assert hil_main(["report", str(run), "--out", str(tmp_path / "r"), "--from-lcm-log",
+                     "--no-plots"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "error: report: --from-lcm-log: expected it with the plots (the log's data feeds only "
+        "them; the table is summary.json's), got --no-plots")
     assert hil_main(["report", str(run), "--out", str(tmp_path / "r"), "--from-lcm-log"]) == 2
     assert capsys.readouterr().err.strip() == (
         f"error: {run / 'run.lcmlog'}: expected an LCM log (hil run --lcm-log writes "
