@@ -26,6 +26,7 @@ one-line error, never a quiet gap. ``read_log`` decodes the log directly, withou
 from __future__ import annotations
 
 import math
+import struct
 import subprocess
 import time
 from collections.abc import Iterable
@@ -104,19 +105,23 @@ class Records:
     plant: list[dict[str, Any]] = field(default_factory=list)
     flight: list[dict[str, Any]] = field(default_factory=list)
     how: str = ""
+    malformed: int = 0  # messages on the channels that are not their struct
 
     def add(self, channel: str, data: bytes) -> None:
         from hil.hil_telemetry import flight_view_t, truth_t
 
-        if channel == TRUTH_CHANNEL:
-            self.plant.append(plant_record(truth_t.decode(data)))
-        elif channel == FLIGHT_CHANNEL:
-            self.flight.append(flight_record(flight_view_t.decode(data)))
+        try:
+            if channel == TRUTH_CHANNEL:
+                self.plant.append(plant_record(truth_t.decode(data)))
+            elif channel == FLIGHT_CHANNEL:
+                self.flight.append(flight_record(flight_view_t.decode(data)))
+        except (ValueError, struct.error, UnicodeDecodeError):
+            self.malformed += 1
 
     def sorted(self) -> Records:
         """By tick (a replay keeps the log's order; this makes it independent of it)."""
         return Records(sorted(self.plant, key=lambda r: r["tick"]),
-                       sorted(self.flight, key=lambda r: r["tick"]), self.how)
+                       sorted(self.flight, key=lambda r: r["tick"]), self.how, self.malformed)
 
 
 def _check_log(path: Path) -> Path:
@@ -163,6 +168,9 @@ def read_log(path: Path) -> Records:
     for ev in lcm.EventLog(str(path), "r"):
         if ev.channel in CHANNELS:
             out.add(ev.channel, ev.data)
+    if out.malformed:
+        raise UsageError(f"{path}: expected only telemetry structs on {TRUTH_CHANNEL} / "
+                         f"{FLIGHT_CHANNEL}, got {out.malformed} other message(s)")
     return out.sorted()
 
 
@@ -183,7 +191,8 @@ def replay(path: Path, url: str, speed: float | None = None,
         sub = lc.subscribe(ch, out.add)
         sub.set_queue_capacity(want[ch] + 16)  # LCM's default keeps 30
     player = subprocess.Popen([lcm_tool("lcm-logplayer"), "--lcm-url", url, "--speed",
-                               repr(speed), "--regexp", "|".join(CHANNELS), str(path)],
+                               repr(speed), "--regexp", f"^({'|'.join(CHANNELS)})$",
+                               str(path)],
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     t_end = time.monotonic() + timeout_s
     try:
@@ -205,6 +214,9 @@ def replay(path: Path, url: str, speed: float | None = None,
         raise BusError(f"replay: lcm-logplayer {path}: expected exit 0, got "
                        f"{player.returncode} ({err[-1] if err else 'no message'})")
     got = {TRUTH_CHANNEL: len(out.plant), FLIGHT_CHANNEL: len(out.flight)}
+    if out.malformed:
+        raise BusError(f"replay: {path}: expected only telemetry structs on {TRUTH_CHANNEL} / "
+                       f"{FLIGHT_CHANNEL}, got {out.malformed} other message(s)")
     if any(got[ch] != want[ch] for ch in CHANNELS):
         raise BusError(f"replay: {path}: expected {want[TRUTH_CHANNEL]} {TRUTH_CHANNEL} and "
                        f"{want[FLIGHT_CHANNEL]} {FLIGHT_CHANNEL} messages, got "

@@ -12,6 +12,7 @@ import lcm
 import pytest
 
 from hil.cli import main as hil_main
+from hil.errors import UsageError
 from hil.lcm_replay import count_log, paced_speed, read_log
 from hil.telemetry import FLIGHT_CHANNEL, TRUTH_CHANNEL, flight_view_message, truth_message
 
@@ -108,3 +109,11 @@ def test_report_options_of_the_log_need_it(tmp_path, capsys):
     assert capsys.readouterr().err.strip() == (
         f"error: {run / 'run.lcmlog'}: expected an LCM log (hil run --lcm-log writes "
         "RUN/run.lcmlog), got no such file")
+
+
+def test_junk_on_a_telemetry_channel_is_an_error_not_a_record(tmp_path):
+    path = _write_log(tmp_path / "run.lcmlog", [(TRUTH_CHANNEL, b"not a truth_t")])
+    with pytest.raises(UsageError) as exc:
+        read_log(path)
+    assert str(exc.value) == (f"{path}: expected only telemetry structs on HIL_TRUTH / "
+                              "HIL_FLIGHT_VIEW, got 1 other message(s)")
