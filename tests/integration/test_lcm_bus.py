@@ -154,6 +154,8 @@ def _check_telemetry(run: Path, summary: dict) -> None:
     assert [m.fuel_kg for m in truth] == [r["fuel_kg"] for r in plant]
     assert [m.att_err_deg for m in truth] == [r["att_err_deg"] for r in plant]
     assert truth[-1].fuel_kg == summary["fuel_kg"]
+    assert summary["lcm_log_telemetry"] == {"HIL_TRUTH": len(truth),
+                                            "HIL_FLIGHT_VIEW": len(view)}
     assert [m.tick for m in view] == [r["tick"] for r in flight]
     got = [(m.tick, m.detection_type, m.detection_thruster) for m in view if m.detection_type]
     want = [(r["tick"], r["detection"]["type"], r["detection"]["thruster"]) for r in flight
