@@ -64,6 +64,7 @@ from hil.process_policy import sched_policy, where_here
 from hil.timing import STAGE_GROUPS, lockstep_figures, realtime_figures, stats_ms
 
 HOST_LOAD_ENV = "HIL_BENCH_HOST_LOAD"  # the host's load average, for a run inside UML
+DEFAULT_PINGS = 1000
 # ============================================================================ pure figures
 
 
@@ -171,10 +172,18 @@ def _run_scenario(mode: str, scenario: dict, out: Path, args) -> tuple[dict, lis
     path = out / "scenario.yaml"
     path.write_text(yaml.safe_dump(scenario, sort_keys=False))
     ns = argparse.Namespace(mode=mode, interface=args.interface, channel=args.channel,
-                            rt_priority=args.rt)
+                            rt_priority=args.rt,
+                            telemetry=args.channel if args.interface == "lcm" else None)
     summary = supervise(path, out, ns, quiet=True)
     return (summary, list(read_jsonl(out / "plant.jsonl")),
             list(read_jsonl(out / "flight.jsonl")))
+
+
+def _bus_where(summary: dict) -> dict[str, str]:
+    """The bus a run went over (an LCM run names its URL)."""
+    if summary.get("bus_kind") == "lcm":
+        return {"bus": f"lcm {summary.get('lcm_url')}"}
+    return {"bus": "can"}
 
 
 def _node_sched(plant: list[dict], flight: list[dict]) -> dict[str, str]:
@@ -193,8 +202,8 @@ def measure_realtime(args, out: Path) -> dict[str, Any]:
     fig = realtime_figures(plant, flight, tick_s)
     fig.update(vehicle=args.vehicle, duration_s=args.duration,
                false_alarms=len(summary.get("false_alarms", [])),
-               where={**where_here(), "sched": {**_node_sched(plant, flight),
-                                                "supervisor": sup},
+               where={**where_here(), **_bus_where(summary),
+                      "sched": {**_node_sched(plant, flight), "supervisor": sup},
                       "clock": "CLOCK_MONOTONIC (kernel rx stamps converted from "
                                "CLOCK_REALTIME)"},
                run_dir=str(out))
@@ -223,8 +232,8 @@ def measure_lockstep(args, out: Path) -> dict[str, Any]:
         summary, plant, flight = _run_scenario("lockstep", sc, out, args)
     fig = lockstep_figures(plant, summary)
     fig.update(vehicle=args.vehicle,
-               where={**where_here(), "sched": {**_node_sched(plant, flight),
-                                                "supervisor": sup},
+               where={**where_here(), **_bus_where(summary),
+                      "sched": {**_node_sched(plant, flight), "supervisor": sup},
                       "clock": "CLOCK_MONOTONIC"},
                run_dir=str(out))
     return fig
@@ -368,13 +377,42 @@ def _public(report: dict) -> dict:
             for k, v in report.items() if not k.startswith("_")}
 
 
-def _parse_parts(text: str) -> tuple[str, ...]:
+# Over LCM: the runs and the allocator; the raw-frame ping-pong and the bus load are CAN's
+# (bench/bench_lcm.py measures LCM's latency).
+LCM_PARTS = ("realtime", "lockstep", "allocator")
+
+
+def _parse_parts(text: str | None, bus: str = "can") -> tuple[str, ...]:
+    if text is None:
+        return LCM_PARTS if bus == "lcm" else DEFAULT_PARTS
     parts = tuple(p.strip() for p in text.split(",") if p.strip())
     bad = [p for p in parts if p not in PARTS]
     if bad or not parts:
         raise UsageError(f"hil bench: --parts: expected a comma list of {', '.join(PARTS)}, "
                          f"got {text!r}")
+    if bus == "lcm" and set(parts) - set(LCM_PARTS):
+        raise UsageError(f"hil bench: --parts: expected {', '.join(LCM_PARTS)} with --bus lcm "
+                         f"(bus and load measure CAN; bench/bench_lcm.py measures LCM), got "
+                         f"{text!r}")
     return parts
+
+
+def _check_bus(args) -> None:
+    """--bus lcm: the CAN-only options refused (one line), LCM's URL as the channel."""
+    if args.bus != "lcm":
+        if args.lcm_url is not None:
+            raise UsageError(f"hil bench: --lcm-url: expected it with --bus lcm, got "
+                             f"{args.lcm_url!r} with the can bus")
+        args.channel = args.channel or "vcan0"
+        return
+    for flag, val in (("--channel", args.channel), ("--pings", args.pings),
+                      ("--bitrate", args.bitrate)):
+        if val is not None:
+            raise UsageError(f"hil bench: {flag}: expected it only with the can bus (the "
+                             f"ping-pong and the bus load are CAN's), got {val!r} with --bus lcm")
+    from bus.lcm_transport import DEFAULT_URL
+
+    args.interface, args.channel = "lcm", args.lcm_url or DEFAULT_URL
 
 
 def _check_args(args) -> None:
@@ -382,6 +420,8 @@ def _check_args(args) -> None:
         from bus.catalog import BITRATE_BPS
 
         args.bitrate = BITRATE_BPS
+    if args.pings is None:
+        args.pings = DEFAULT_PINGS
     for name, value, lo in (("--duration", args.duration, 2.0),
                             ("--lockstep-duration", args.lockstep_duration, 1.0),
                             ("--hostile-duration", args.hostile_duration, 2.0),
@@ -400,7 +440,7 @@ def _check_args(args) -> None:
         raise UsageError(f"hil bench: --vehicle: expected one of "
                          f"{sorted(p.stem for p in VEHICLE_DIR.glob('*.yaml'))}, "
                          f"got {args.vehicle!r}")
-    if args.interface != "socketcan":
+    if args.interface not in ("socketcan", "lcm"):
         raise UsageError(f"hil bench: --interface: expected socketcan (the bench measures "
                          f"SocketCAN between processes), got {args.interface!r}")
 
@@ -409,6 +449,10 @@ def _maybe_in_uml(args, argv: list[str]) -> int | None:
     """``hil.run.maybe_in_uml`` for this module: re-run ``python -m hil.bench`` inside UML."""
     from hil.run import INSIDE_UML_ENV, _vcan_ready
 
+    if args.interface == "lcm":  # LCM: a private network namespace (hil.netns)
+        from hil.netns import run_in_namespace
+
+        return run_in_namespace(argv, args.channel, cwd=os.getcwd())
     if os.environ.get(INSIDE_UML_ENV) or _vcan_ready(args.channel):
         return None
     from hil.uml import run_in_uml
@@ -421,16 +465,19 @@ def _maybe_in_uml(args, argv: list[str]) -> int | None:
 
 
 def _cmd_bench(args) -> int:
-    args.parts = _parse_parts(args.parts)
+    args.parts = _parse_parts(args.parts, args.bus)
+    _check_bus(args)
     _check_args(args)
     out = Path(args.out).resolve()
     json_path = Path(args.json).resolve() if args.json else out / "bench.json"
     argv = ["bench", "--out", str(out), "--json", str(json_path), "--duration",
             str(args.duration), "--lockstep-duration", str(args.lockstep_duration),
-            "--vehicle", args.vehicle, "--pings", str(args.pings), "--alloc-ticks",
-            str(args.alloc_ticks), "--bitrate", str(args.bitrate), "--parts",
-            ",".join(args.parts), "--channel", args.channel, "--hostile-loads",
-            args.hostile_loads, "--hostile-duration", str(args.hostile_duration)]
+            "--vehicle", args.vehicle, "--alloc-ticks", str(args.alloc_ticks), "--parts",
+            ",".join(args.parts)]
+    argv += (["--bus", "lcm", "--lcm-url", args.channel] if args.bus == "lcm" else
+             ["--pings", str(args.pings), "--bitrate", str(args.bitrate), "--channel",
+              args.channel, "--hostile-loads", args.hostile_loads, "--hostile-duration",
+              str(args.hostile_duration)])
     argv += ["--stress"] * bool(args.stress) + ["--rt"] * bool(args.rt) + \
         ["--no-plots"] * bool(args.no_plots)
     rc = _maybe_in_uml(args, argv)
@@ -464,14 +511,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="add one CPU hog process per CPU while measuring")
     p.add_argument("--rt", action="store_true",
                    help="ask for SCHED_FIFO for the processes (reported when refused)")
-    p.add_argument("--pings", type=int, default=1000, help="frames of the bus ping-pong")
+    p.add_argument("--pings", type=int, help=f"frames of the bus ping-pong (default "
+                                              f"{DEFAULT_PINGS})")
     p.add_argument("--alloc-ticks", type=int, default=1000,
                    help="LP problems for the allocator comparison")
     p.add_argument("--bitrate", type=int, default=None,
                    help="bit rate for the bus load (default the catalog's)")
-    p.add_argument("--parts", default=",".join(DEFAULT_PARTS),
+    p.add_argument("--parts",
                    help=f"comma list of the parts to measure, of {','.join(PARTS)} (default "
-                        f"{','.join(DEFAULT_PARTS)})")
+                        f"{','.join(DEFAULT_PARTS)}; with --bus lcm {','.join(LCM_PARTS)})")
     p.add_argument("--hostile-loads", default=",".join(DEFAULT_HOSTILE_LOADS),
                    metavar="LOAD,...",
                    help="hostile part: none or CLASS:RATE (frames/s) per run; CLASS one of "
@@ -480,7 +528,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="hostile part: seconds of each real-time run (default 20)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--interface", default="socketcan", help=argparse.SUPPRESS)
-    p.add_argument("--channel", default="vcan0", help="SocketCAN channel (default vcan0)")
+    p.add_argument("--channel", help="SocketCAN channel (default vcan0)")
+    p.add_argument("--bus", choices=("can", "lcm"), default="can",
+                   help="the runs over CAN (default) or over LCM (in a private network "
+                        "namespace; parts realtime, lockstep, allocator)")
+    p.add_argument("--lcm-url", metavar="URL", help="LCM provider with --bus lcm")
     p.set_defaults(func=_cmd_bench)
 
 

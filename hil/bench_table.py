@@ -149,6 +149,8 @@ def _where_text(w: dict | None) -> str:
     if not w:
         return ""
     bits = [w.get("kernel", "?")]
+    if w.get("bus"):
+        bits.append(f"bus {w['bus']}")
     sched = w.get("sched")
     if isinstance(sched, dict):
         bits.append(", ".join(f"{k} {v}" for k, v in sched.items()))

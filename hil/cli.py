@@ -30,6 +30,7 @@ COMMAND_MODULES = (
     "hil.flood",
     "hil.runall",
     "hil.report",
+    "hil.record_cmd",
     "hil.bench",
     "hil.soak",
     "hil.campaign.cli",

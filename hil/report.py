@@ -62,6 +62,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from hil.argtypes import number
 from hil.errors import UsageError
 from hil.report_figures import PLOTS, fmt_num, fmt_s
 from hil.report_load import (
@@ -298,12 +299,15 @@ def _run_section(run: Run, pngs: list[Path]) -> list[str]:
 
 
 def write_report(run_dirs: list[Path], out_dir: Path, *, plots: bool = True,
-                 progress: Callable[[str], None] | None = None) -> ReportResult:
+                 progress: Callable[[str], None] | None = None,
+                 records_of: Callable[[Path], Any] | None = None) -> ReportResult:
     """Read every run folder (all checked first), write plots, ``report.md`` and ``report.json``.
 
     Raises ``UsageError`` (one line) for a missing folder or an unreadable summary before
     anything is written. Missing per-tick files only cost plots (a note says so).
     ``plots=False`` writes the table alone (fast). ``progress`` gets one line per run.
+    ``records_of(run_dir)``: the per-tick records of a run from elsewhere than its JSON lines
+    (``hil report --from-lcm-log``: its LCM log replayed, ``hil.lcm_replay``).
     """
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
@@ -313,6 +317,10 @@ def write_report(run_dirs: list[Path], out_dir: Path, *, plots: bool = True,
         raise UsageError("report: DIR: expected at least one run folder, got none")
     for d in dirs:
         read_summary(d)  # fail fast, before the slow part
+        if records_of is not None:
+            from hil.lcm_replay import LOG_NAME, count_log
+
+            count_log(d / LOG_NAME)
     out_dir.mkdir(parents=True, exist_ok=True)
     runs: list[Run] = []
     used: set[str] = set()
@@ -320,7 +328,7 @@ def write_report(run_dirs: list[Path], out_dir: Path, *, plots: bool = True,
     pngs_of: dict[str, list[Path]] = {}
     for d in dirs:
         t0 = time.monotonic()
-        run = load_run(d)
+        run = load_run(d, records_of(d) if records_of is not None else None)
         run.slug = _slug(run.name, run.path, used)
         runs.append(run)
         rows.extend(table_rows(run))
@@ -353,10 +361,42 @@ def write_report(run_dirs: list[Path], out_dir: Path, *, plots: bool = True,
                         run_failed=[n for n, v in verdicts.items() if v == "run_failed"])
 
 
+def _lcm_log_source(args, out: Path) -> tuple[int | None, Callable[[Path], Any] | None]:
+    """``--from-lcm-log``: each run's ``run.lcmlog`` replayed by ``lcm-logplayer`` in a private
+    network namespace (``hil.lcm_replay``); (exit code of the re-run there, or None; the
+    records source)."""
+    if not args.from_lcm_log:
+        for flag, val in (("--speed", args.speed), ("--lcm-url", args.lcm_url)):
+            if val is not None:
+                raise UsageError(f"report: {flag}: expected it with --from-lcm-log, got "
+                                 f"{val!r} without it")
+        return None, None
+    if args.no_plots:
+        raise UsageError("report: --from-lcm-log: expected it with the plots (the log's data "
+                         "feeds only them; the table is summary.json's), got --no-plots")
+    from bus.lcm_transport import DEFAULT_URL
+    from hil.lcm_replay import LOG_NAME, count_log, replay
+    from hil.netns import run_in_namespace
+
+    url = args.lcm_url or DEFAULT_URL
+    speed = args.speed  # None: paced (hil.lcm_replay.paced_speed)
+    dirs = expand_run_dirs([Path(d) for d in args.runs], skip=out)
+    for d in dirs:
+        read_summary(d)
+        count_log(d / LOG_NAME)  # one line before the namespace
+    argv = ["report", *[str(d.resolve()) for d in dirs], "--out", str(out.resolve()),
+            "--from-lcm-log", "--lcm-url", url]
+    rc = run_in_namespace(argv + (["--speed", repr(speed)] if speed else []), url)
+    return rc, lambda d: replay(d / LOG_NAME, url, speed=speed)
+
+
 def _cmd(args) -> int:
     out = Path(args.out) if args.out else Path("runs") / "report"
+    rc, records_of = _lcm_log_source(args, out)
+    if rc is not None:
+        return rc
     result = write_report([Path(d) for d in args.runs], out, plots=not args.no_plots,
-                          progress=print)
+                          progress=print, records_of=records_of)
     n = len(result.plots)
     if result.all_met:
         print(f"report: {result.markdown} ({n} run(s), all expectations met)")
@@ -375,4 +415,13 @@ def register(sub) -> None:
     p.add_argument("--out", metavar="REPORT_DIR",
                    help="report folder (default runs/report)")
     p.add_argument("--no-plots", action="store_true", help="table only (fast)")
+    p.add_argument("--from-lcm-log", action="store_true",
+                   help="per-tick data from each run's run.lcmlog (hil run --lcm-log), played "
+                        "by lcm-logplayer in a private network namespace, instead of its JSON "
+                        "lines (the table still comes from summary.json)")
+    p.add_argument("--speed", type=number(gt=0, le=10000), metavar="X",
+                   help="with --from-lcm-log: lcm-logplayer's speed multiplier (default: paced "
+                        "to about 300 messages per second)")
+    p.add_argument("--lcm-url", metavar="URL",
+                   help="with --from-lcm-log: the LCM provider to play on")
     p.set_defaults(func=_cmd)

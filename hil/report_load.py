@@ -125,9 +125,15 @@ def _named(records: list[dict], key: str) -> dict[str, np.ndarray]:
     return out
 
 
-def _load_arrays(run: Run) -> None:
-    plant = _records(run.path / "plant.jsonl")
-    flight = _records(run.path / "flight.jsonl")
+def _load_arrays(run: Run, records: Any = None) -> None:
+    """The per-tick arrays from the run's JSON lines, or from ``records`` (a
+    ``hil.lcm_replay.Records``: the run's LCM log replayed)."""
+    if records is None:
+        plant = _records(run.path / "plant.jsonl")
+        flight = _records(run.path / "flight.jsonl")
+    else:
+        plant, flight = records.plant, records.flight
+        run.notes.append(f"per-tick data: {records.how}")
     if not plant:
         run.notes.append("plant.jsonl missing or empty: no truth plots")
     if not flight:
@@ -221,10 +227,11 @@ def _expected_detections(run: Run) -> list[dict[str, Any]]:
     return out
 
 
-def load_run(run_dir: Path) -> Run:
-    """Read one run folder (``UsageError`` if it is not one); plots need only what is there."""
+def load_run(run_dir: Path, records: Any = None) -> Run:
+    """Read one run folder (``UsageError`` if it is not one); plots need only what is there.
+    ``records``: the per-tick records to use instead of the folder's JSON lines."""
     run = Run(path=Path(run_dir), summary=read_summary(Path(run_dir)))
-    _load_arrays(run)
+    _load_arrays(run, records)
     _load_context(run)
     return run
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import subprocess
 import sys
 import threading
 import time
@@ -91,8 +92,49 @@ class Progress:
                 f"{eta}")
 
 
+def run_all_bus(args, files: list[Path]) -> str:
+    """The one bus of the whole set: ``--bus``, else the scenarios' ``bus:`` (which must
+    agree; none names can). Options of the other bus are refused (one line)."""
+    buses = {p.stem: load_scenario(p).cfg.bus for p in files}
+    kinds = {n: b.kind if b is not None else "can" for n, b in buses.items()}
+    kind = args.bus
+    if kind is None:
+        found = sorted(set(kinds.values()))
+        if len(found) > 1:
+            by = ", ".join(f"{n}: {k}" for n, k in kinds.items())
+            raise UsageError(f"run-all: bus: expected every scenario on one bus (or --bus "
+                             f"can|lcm for all), got {by}")
+        kind = found[0] if found else "can"
+    if kind == "lcm":
+        for flag, val in (("--interface", args.interface), ("--channel", args.channel)):
+            if val is not None:
+                raise UsageError(f"run-all: {flag}: expected no python-can {flag[2:]} with the "
+                                 f"lcm bus (--lcm-url names its provider), got {val!r}")
+    elif args.lcm_url is not None:
+        raise UsageError(f"run-all: --lcm-url: expected it with the lcm bus, got "
+                         f"{args.lcm_url!r} with the can bus")
+    args.interface = args.interface or "socketcan"
+    args.channel = args.channel or "vcan0"
+    args.bus_kind = kind
+    return kind
+
+
+def _scenario_args(args, scenario: Path):
+    """This scenario's copy of the options: its bus resolved as ``hil run`` does (``--bus``
+    and ``--lcm-url`` win over its ``bus:``)."""
+    from hil.run import resolve_bus
+
+    a = argparse.Namespace(**vars(args))
+    a.telemetry, a.lcm_log = None, False
+    if args.bus_kind == "lcm":
+        a.interface = a.channel = None  # resolve_bus puts LCM's there
+    resolve_bus(a, load_scenario(scenario))
+    return a
+
+
 def _run_here(files: list[Path], out: Path, args, progress: Progress | None = None) -> list[dict]:
-    """Run the scenarios one after the other in this process's environment (vcan0 here)."""
+    """Run the scenarios one after the other in this process's environment (vcan0 here, or
+    the private network namespace of an LCM set)."""
     from hil.run import supervise
 
     results = []
@@ -100,7 +142,7 @@ def _run_here(files: list[Path], out: Path, args, progress: Progress | None = No
         name = p.stem
         t0 = time.monotonic()
         print(f"run-all: {name} ...", flush=True)
-        s = supervise(p.resolve(), (out / name).resolve(), args, quiet=True)
+        s = supervise(p.resolve(), (out / name).resolve(), _scenario_args(args, p), quiet=True)
         verdict = {"passed": "met", "not_met": "NOT met"}.get(s["verdict"], "RUN FAILED")
         dets = ", ".join(
             f"{d['type']} {d['thruster']} +{d['latency_s']:.1f} s" if d["latency_s"] is not None
@@ -116,7 +158,41 @@ def _run_here(files: list[Path], out: Path, args, progress: Progress | None = No
     return results
 
 
+def _in_parallel(groups: list[list[Path]], one, files: list[Path], out: Path,
+                 t0: float) -> list[int]:
+    """``one(group)`` for every group side by side, with the progress of all; exit codes."""
+    progress = Progress(files, out, t0)
+    with ThreadPoolExecutor(max_workers=len(groups)) as pool:
+        running = pool.map(one, groups)
+        watcher_halt = threading.Event()
+
+        def watch() -> None:
+            while not watcher_halt.wait(1.0):
+                for line in progress.poll():
+                    print(line, flush=True)
+
+        watcher = threading.Thread(target=watch, daemon=True)
+        watcher.start()
+        try:
+            codes = list(running)
+        finally:
+            watcher_halt.set()
+            watcher.join(3)
+        for line in progress.poll():
+            print(line, flush=True)
+    return codes
+
+
+def _child_argv(args, out: Path, group: list[Path]) -> list[str]:
+    argv = [sys.executable, "-m", "hil.cli", "run-all", "--out", str(out), "--mode", args.mode,
+            "--no-report", "--only", *[p.stem for p in group]]
+    if args.bus is not None:
+        argv += ["--bus", args.bus]
+    return argv + (["--lcm-url", args.lcm_url] if args.lcm_url else [])
+
+
 def _cmd_run_all(args) -> int:
+    from hil.netns import NETNS_ENV, run_in_namespace
     from hil.run import _vcan_ready
 
     if args.jobs < 1:
@@ -124,43 +200,43 @@ def _cmd_run_all(args) -> int:
     files = scenario_files(args.only)
     for p in files:
         load_scenario(p)  # config errors exit 2 before anything starts
+    kind = run_all_bus(args, files)
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    needs_uml = (args.interface == "socketcan" and not os.environ.get(INSIDE_UML_ENV)
-                 and not _vcan_ready(args.channel))
-    if needs_uml:
+    needs_uml = (kind == "can" and args.interface == "socketcan"
+                 and not os.environ.get(INSIDE_UML_ENV) and not _vcan_ready(args.channel))
+    if kind == "lcm" and args.jobs > 1 and not args.no_report:
+        # Each share of the set in its own private network namespace (a child run-all that
+        # makes its own, hil.netns): runs side by side on one URL cannot hear each other.
+        groups = _split(files, args.jobs)
+        print(f"hil: {len(files)} scenarios over LCM in {len(groups)} private network "
+              f"namespace(s) side by side", flush=True)
+        env = {k: v for k, v in os.environ.items() if k != NETNS_ENV}
+        codes = _in_parallel(groups, lambda g: subprocess.run(
+            _child_argv(args, out, g), env=env, cwd=os.getcwd()).returncode, files, out, t0)
+        if any(c not in (0, 1) for c in codes):
+            print(f"run-all: a share of the set failed (exit codes {codes})", file=sys.stderr)
+    elif kind == "lcm":
+        from bus.lcm_transport import DEFAULT_URL
+
+        argv = _child_argv(args, out, files)[3:]
+        if not args.no_report:
+            argv.remove("--no-report")
+        rc = run_in_namespace(argv, args.lcm_url or DEFAULT_URL, cwd=os.getcwd())
+        if rc is not None:
+            return rc
+        # A share of a bigger set (--no-report): the parent shows the progress of all.
+        _run_here(files, out, args, None if args.no_report else Progress(files, out, t0))
+    elif needs_uml:
         from hil.uml import run_in_uml
 
         groups = _split(files, args.jobs)
         print(f"hil: this kernel has no CAN; {len(files)} scenarios in {len(groups)} user-mode "
               f"Linux instance(s) (real vcan0 in each)", flush=True)
         env = dict(os.environ, **{INSIDE_UML_ENV: "1"})
-
-        def one(group: list[Path]) -> int:
-            argv = [sys.executable, "-m", "hil.cli", "run-all", "--out", str(out), "--mode",
-                    args.mode, "--no-report", "--only", *[p.stem for p in group]]
-            return run_in_uml(argv, env=env, cwd=os.getcwd())
-
-        progress = Progress(files, out, t0)
-        with ThreadPoolExecutor(max_workers=len(groups)) as pool:
-            running = pool.map(one, groups)
-            watcher_halt = threading.Event()
-
-            def watch() -> None:
-                while not watcher_halt.wait(1.0):
-                    for line in progress.poll():
-                        print(line, flush=True)
-
-            watcher = threading.Thread(target=watch, daemon=True)
-            watcher.start()
-            try:
-                codes = list(running)
-            finally:
-                watcher_halt.set()
-                watcher.join(3)
-            for line in progress.poll():
-                print(line, flush=True)
+        codes = _in_parallel(groups, lambda g: run_in_uml(_child_argv(args, out, g), env=env,
+                                                          cwd=os.getcwd()), files, out, t0)
         if any(c not in (0, 1) for c in codes):
             print(f"run-all: a user-mode Linux instance failed (exit codes {codes})",
                   file=sys.stderr)
@@ -205,8 +281,15 @@ def register(sub) -> None:
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
     p.add_argument("--only", nargs="+", metavar="NAME", help="scenario names (file stems)")
     p.add_argument("--jobs", type=int, default=1,
-                   help="user-mode Linux instances side by side (no-CAN kernels only)")
+                   help="user-mode Linux instances side by side (no-CAN kernels), or private "
+                        "network namespaces over LCM")
     p.add_argument("--no-report", action="store_true", help=argparse.SUPPRESS)
-    p.add_argument("--interface", default="socketcan", help="python-can interface")
-    p.add_argument("--channel", default="vcan0", help="bus channel (default vcan0)")
+    p.add_argument("--interface", help="python-can interface (default socketcan)")
+    p.add_argument("--channel", help="bus channel (default vcan0)")
+    p.add_argument("--bus", choices=("can", "lcm"),
+                   help="the bus of every scenario: can (--interface/--channel) or lcm (in a "
+                        "private network namespace; with --jobs N, N of them side by side); "
+                        "default: the scenarios' bus:, else can")
+    p.add_argument("--lcm-url", metavar="URL",
+                   help="LCM provider with the lcm bus (default udpm://239.255.76.67:7667?ttl=0)")
     p.set_defaults(func=_cmd_run_all)

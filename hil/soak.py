@@ -149,17 +149,21 @@ def _scenario_file(args, tmp: Path) -> Path:
 
 
 def _cmd_soak(args) -> int:
-    from hil.run import _batch_policy, maybe_in_uml, supervise
+    from hil.config import load_scenario
+    from hil.run import _batch_policy, maybe_in_netns, maybe_in_uml, resolve_bus, supervise
 
     out = Path(args.out or f"runs/soak-{args.vehicle}").resolve()
     tmp = Path(tempfile.mkdtemp(prefix="hil-soak-"))
     scenario = _scenario_file(args, tmp)
+    resolve_bus(args, load_scenario(scenario))  # --bus, else the scenario's bus:, else can
     argv = ["soak", "--hours", str(args.hours), "--mode", args.mode, "--out", str(out),
             "--sample-s", str(args.sample_s), "--interface", args.interface,
-            "--channel", args.channel]
+            "--channel", args.channel] + (["--bus", "can"] if args.interface != "lcm" else [])
     argv += ["--scenario", str(Path(args.scenario).resolve())] if args.scenario else \
         ["--vehicle", args.vehicle]
-    rc = maybe_in_uml(args, argv)
+    rc = maybe_in_netns(args, argv)  # LCM: a private network namespace (hil.netns)
+    if rc is None:
+        rc = maybe_in_uml(args, argv)
     if rc is not None:
         return rc
     _batch_policy()
@@ -202,7 +206,11 @@ def register(sub) -> None:
     p.add_argument("--sample-s", type=number(gt=0, le=3600), default=5.0,
                    help="wall seconds between samples (5)")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/soak-<vehicle>)")
-    p.add_argument("--interface", default="socketcan", help="python-can interface")
-    p.add_argument("--channel", default="vcan0", help="bus channel (default vcan0)")
+    p.add_argument("--interface", help="python-can interface (default socketcan)")
+    p.add_argument("--channel", help="bus channel (default vcan0)")
+    p.add_argument("--bus", choices=("can", "lcm"),
+                   help="can (--interface/--channel) or lcm (a private network namespace; "
+                        "docs/lcm.md); default: the scenario's bus:, else can")
+    p.add_argument("--lcm-url", metavar="URL", help="LCM provider with --bus lcm")
     p.set_defaults(func=_cmd_soak, kill_flight_at=None)
 

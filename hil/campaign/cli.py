@@ -2,7 +2,7 @@
 
 Usage:
 
-    hil campaign FILE [--workers N | --scheduler tcp://HOST:8786] [--out DIR] [--bus]
+    hil campaign FILE [--workers N | --scheduler tcp://HOST:8786] [--out DIR] [--bus [can|lcm]]
     hil campaign expand FILE --run K[,K...] [--out DIR]
     hil campaign sweep FILE [FILE ...] [--thresholds T,T,...] [--forgetting W,W,...]
                        [--workers N | --scheduler ADDRESS] [--out DIR]
@@ -101,7 +101,7 @@ def _cmd_run(args) -> int:
         return 130
     rc = 1 if doc["failures"] or doc["rows"] < c.runs else 0
     if args.bus:
-        rc = max(rc, _bus_check(c, out))
+        rc = max(rc, _bus_check(c, out, args.bus))
     return rc
 
 
@@ -129,8 +129,9 @@ def compare(row: dict[str, Any], bus: dict[str, Any], n_ticks: int) -> list[str]
     return diffs
 
 
-def _bus_check(c, out: Path) -> int:
-    """Run the sample over the real bus (``hil run``, lockstep, vcan0) and compare."""
+def _bus_check(c, out: Path, bus: str | bool = True) -> int:
+    """Run the sample over the real bus (``hil run``, lockstep: ``bus`` can (vcan0) or lcm,
+    True for the base scenario's ``bus:``, else can) and compare."""
     from hil.campaign.engine import read_rows
     from hil.campaign.expansion import expand_run, write_run
 
@@ -141,6 +142,8 @@ def _bus_check(c, out: Path) -> int:
         d = out / "bus" / spec.name
         path = write_run(spec, d)
         cmd = [sys.executable, "-m", "hil.cli", "run", str(path), "--out", str(d / "run")]
+        if bus in ("can", "lcm"):  # else the run's own bus: (the base scenario's), or can
+            cmd += ["--bus", bus]
         print(f"bus: run {k}: {' '.join(cmd[1:])}", flush=True)
         p = subprocess.run(cmd, capture_output=True, text=True)
         summ = d / "run" / "summary.json"
@@ -150,11 +153,12 @@ def _bus_check(c, out: Path) -> int:
                             f"{' / '.join(tail)}"})
             bad += 1
             continue
-        bus = json.loads(summ.read_text())
-        diffs = compare(rows[k], bus, spec.n_ticks) if k in rows else ["no in-process row"]
-        results.append({"run": k, "agree": not diffs, "diffs": diffs, "where": bus.get("where"),
+        summ_bus = json.loads(summ.read_text())
+        diffs = compare(rows[k], summ_bus, spec.n_ticks) if k in rows else ["no in-process row"]
+        results.append({"run": k, "agree": not diffs, "diffs": diffs,
+                        "where": summ_bus.get("where"), "bus_kind": summ_bus.get("bus_kind"),
                         "fuel_kg": {"in_process": rows.get(k, {}).get("fuel_kg"),
-                                    "bus": bus.get("fuel_kg")}})
+                                    "bus": summ_bus.get("fuel_kg")}})
         bad += bool(diffs)
         print(f"bus: run {k}: {'agrees' if not diffs else 'DIFFERS: ' + '; '.join(diffs)}")
     (out / "bus.json").write_text(json.dumps(results, indent=2) + "\n")
@@ -273,9 +277,11 @@ def register(sub) -> None:
     p.add_argument("--out", metavar="DIR",
                    help="results folder (default runs/campaigns/<name>); expand: where the "
                         "scenario files go")
-    p.add_argument("--bus", action="store_true",
-                   help="also run a sample of the runs over the real bus (hil run, vcan0) "
-                        "and check that they agree with the in-process rows")
+    p.add_argument("--bus", nargs="?", const=True, choices=("can", "lcm"),
+                   help="also run a sample of the runs over the real bus (hil run, lockstep) "
+                        "and check that they agree with the in-process rows: can (vcan0), lcm "
+                        "(a private network namespace), or, given alone, the base scenario's "
+                        "bus: (else can)")
     p.add_argument("--no-progress", action="store_true", help="no progress output")
     p.add_argument("--run", metavar="K[,K...]", help="expand: the run indices to write")
     p.add_argument("--thresholds", metavar="T,T,...",

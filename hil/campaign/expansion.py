@@ -194,6 +194,8 @@ def expand_run(c: Campaign, k: int) -> RunSpec:
     scen["expect"] = {"no_false_alarm": True}
     if base.get("safety"):
         scen["safety"] = base["safety"]
+    if base.get("bus"):  # the bus `hil campaign --bus` runs it over (docs/lcm.md)
+        scen["bus"] = base["bus"]
     return RunSpec(run=k, name=name, scenario=scen, vehicle=vehicle, vehicle_changed=changed,
                    vehicle_ref=c.vehicle_ref, params=params, fault=fault)
 

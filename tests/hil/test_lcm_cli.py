@@ -45,7 +45,7 @@ def test_scenario_bus_errors_are_one_line(tmp_path, capsys, bus_line, message):
 
 
 def _args(**kw) -> argparse.Namespace:
-    base = dict(interface="socketcan", channel="vcan0", bus=None, lcm_url=None,
+    base = dict(interface=None, channel=None, bus=None, lcm_url=None,
                 telemetry=None, lcm_log=False)
     return argparse.Namespace(**{**base, **kw})
 
@@ -59,6 +59,13 @@ def test_the_bus_a_run_resolves_to(tmp_path):
     a = _args(bus="can")  # the command line wins over the scenario
     resolve_bus(a, sc)
     assert (a.interface, a.channel, a.telemetry) == ("socketcan", "vcan0", None)
+    # ... also in the re-run (namespace, user-mode Linux), which gets the resolved bus
+    from hil.run import _lcm_argv
+
+    assert _lcm_argv(a) == ["--bus", "can"]
+    again = _args(bus="can", interface="socketcan", channel="vcan0")
+    resolve_bus(again, sc)
+    assert again.interface == "socketcan"
     a = _args(lcm_log=True)  # a CAN run with its telemetry on the default URL
     resolve_bus(a, load_scenario(S000))
     assert (a.interface, a.telemetry) == ("socketcan", DEFAULT_URL)
@@ -118,3 +125,72 @@ def test_a_set_sent_out_of_order_is_lost_whole():
     assert [type(m) for m, _ in rx.poll(0.1)] == [Gyro]
     tx.close()
     rx.close()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", str(S000), "--bus", "lcm", "--interface", "udp_multicast"],
+     "error: --interface: expected no python-can interface with the lcm bus (--lcm-url names "
+     "its provider), got 'udp_multicast'"),
+    (["run-all", "--bus", "lcm", "--channel", "vcan1"],
+     "error: run-all: --channel: expected no python-can channel with the lcm bus (--lcm-url "
+     "names its provider), got 'vcan1'"),
+    (["run-all", "--lcm-url", "udpm://239.255.76.67:7700"],
+     "error: run-all: --lcm-url: expected it with the lcm bus, got "
+     "'udpm://239.255.76.67:7700' with the can bus"),
+    (["soak", "--hours", "1", "--bus", "lcm", "--interface", "socketcan"],
+     "error: --interface: expected no python-can interface with the lcm bus (--lcm-url names "
+     "its provider), got 'socketcan'"),
+    (["soak", "--hours", "1", "--lcm-url", "udpm://239.255.76.67:7700"],
+     "error: --lcm-url: expected it with --bus lcm, got 'udpm://239.255.76.67:7700' with the "
+     "can bus alone"),
+    (["bench", "--bus", "lcm", "--parts", "realtime,bus"],
+     "error: hil bench: --parts: expected realtime, lockstep, allocator with --bus lcm (bus and "
+     "load measure CAN; bench/bench_lcm.py measures LCM), got 'realtime,bus'"),
+    (["bench", "--bus", "lcm", "--bitrate", "500000"],
+     "error: hil bench: --bitrate: expected it only with the can bus (the ping-pong and the bus "
+     "load are CAN's), got 500000 with --bus lcm"),
+    (["bench", "--lcm-url", "udpm://239.255.76.67:7700"],
+     "error: hil bench: --lcm-url: expected it with --bus lcm, got "
+     "'udpm://239.255.76.67:7700' with the can bus"),
+    (["campaign", "expand", str(REPO / "configs/campaigns/ci-generic.yaml"), "--run", "1",
+      "--bus", "lcm"],
+     "error: hil campaign expand: --bus: expected no such option for this action, got 'lcm'"),
+])
+def test_options_of_the_other_bus_are_refused(capsys, argv, message):
+    assert hil_main(argv) == 2
+    assert capsys.readouterr().err.strip() == message
+
+
+def test_run_all_takes_one_bus_for_the_set(tmp_path, capsys):
+    """Without --bus the scenarios' bus: decides, and they must agree (never a CAN run of a
+    scenario that names LCM); --bus decides for all."""
+    from hil.errors import UsageError
+    from hil.runall import run_all_bus
+
+    a = _scenario(tmp_path, '{kind: lcm}')
+    b = tmp_path / "b.yaml"
+    b.write_text(S000.read_text().replace("vehicle: generic",
+                                          f"vehicle: {REPO}/configs/vehicles/generic.yaml"))
+    args = argparse.Namespace(bus=None, interface=None, channel=None, lcm_url=None)
+    with pytest.raises(UsageError) as exc:
+        run_all_bus(args, [a, b])
+    assert str(exc.value) == ("run-all: bus: expected every scenario on one bus (or --bus "
+                              "can|lcm for all), got s: lcm, b: can")
+    assert run_all_bus(args, [a]) == "lcm" and args.interface == "socketcan"
+    args = argparse.Namespace(bus="can", interface=None, channel=None, lcm_url=None)
+    assert run_all_bus(args, [a, b]) == "can" and args.channel == "vcan0"
+
+
+def test_an_expanded_campaign_run_keeps_its_base_bus(tmp_path):
+    """`hil campaign --bus` runs a sampled run over the bus its base scenario names."""
+    import yaml
+
+    from hil.campaign.expansion import expand_run
+    from hil.campaign.load import load_campaign
+
+    base = _scenario(tmp_path, '{kind: lcm, url: "udpm://239.255.76.67:7701?ttl=0"}')
+    c = tmp_path / "c.yaml"
+    c.write_text(yaml.safe_dump({"name": "c", "base": {"scenario": str(base)}, "runs": 2,
+                                 "seed": 1, "duration_s": 2.0}))
+    spec = expand_run(load_campaign(c), 1)
+    assert spec.scenario["bus"] == {"kind": "lcm", "url": "udpm://239.255.76.67:7701?ttl=0"}

@@ -124,7 +124,8 @@ def _run(args: list[str], out: Path, env: dict | None = None) -> dict:
 
 def _same_outcome(a: dict, b: dict) -> None:
     for key in ("detections", "faults", "false_alarms", "missed_faults", "fuel_kg",
-                "max_attitude_error_deg", "max_rate_error_deg_s", "ticks", "verdict"):
+                "max_attitude_error_deg", "max_rate_error_deg_s", "delta_v_B_m_s",
+                "fdir_actions", "safe_events", "ticks", "verdict"):
         assert a[key] == b[key], key
 
 
@@ -153,6 +154,8 @@ def _check_telemetry(run: Path, summary: dict) -> None:
     assert [m.fuel_kg for m in truth] == [r["fuel_kg"] for r in plant]
     assert [m.att_err_deg for m in truth] == [r["att_err_deg"] for r in plant]
     assert truth[-1].fuel_kg == summary["fuel_kg"]
+    assert summary["lcm_log_telemetry"] == {"HIL_TRUTH": len(truth),
+                                            "HIL_FLIGHT_VIEW": len(view)}
     assert [m.tick for m in view] == [r["tick"] for r in flight]
     got = [(m.tick, m.detection_type, m.detection_thruster) for m in view if m.detection_type]
     want = [(r["tick"], r["detection"]["type"], r["detection"]["thruster"]) for r in flight
@@ -163,43 +166,123 @@ def _check_telemetry(run: Path, summary: dict) -> None:
         flight[5]["series"]["flight/omega_meas_deg_s"]["x"]
 
 
-def test_lockstep_over_lcm_equals_lockstep_over_can(url, tmp_path):
+def _jsonl(path: Path) -> list[dict]:
+    return [json.loads(x) for x in path.read_text().splitlines()]
+
+
+@pytest.fixture(scope="module")
+def lcm_run(tmp_path_factory) -> Path:
+    """S000-stuck in lockstep over LCM with --lcm-log (shared by the tests that read it)."""
+    out = tmp_path_factory.mktemp("lcm-run") / "lcm"
+    _run([str(SCENARIO), "--bus", "lcm", "--lcm-url",
+          f"udpm://239.255.76.67:{_free_port()}?ttl=0", "--lcm-log"], out)
+    return out
+
+
+def test_lockstep_over_lcm_equals_lockstep_over_can(lcm_run, tmp_path):
     """S000-stuck in lockstep over LCM and over python-can's udp_multicast (the CAN
-    interface the tests use between processes): the same detections, truth and fuel. Both
-    write run.lcmlog with lcm-logger: the LCM run its control channels and telemetry, the
-    CAN run its telemetry alone."""
-    lcm_s = _run([str(SCENARIO), "--bus", "lcm", "--lcm-url", url, "--lcm-log"],
-                 tmp_path / "lcm")
+    interface the tests use between processes): the same detections, truth, delta-v and
+    fuel. Both write run.lcmlog with lcm-logger: the LCM run its control channels and
+    telemetry, the CAN run its telemetry alone."""
+    lcm_s = json.loads((lcm_run / "summary.json").read_text())
     env = dict(os.environ, CAN_CONFIG=json.dumps({"port": _free_port()}))
     can_s = _run([str(SCENARIO), "--interface", "udp_multicast", "--channel",
                   "239.74.163.2", "--lcm-log", "--lcm-url",
                   f"udpm://239.255.76.67:{_free_port()}?ttl=0"], tmp_path / "can", env=env)
-    _check_telemetry(tmp_path / "lcm", lcm_s)
+    _check_telemetry(lcm_run, lcm_s)
     _check_telemetry(tmp_path / "can", can_s)
     ticks = lcm_s["ticks"]
-    lcm_log, can_log = _log(tmp_path / "lcm/run.lcmlog"), _log(tmp_path / "can/run.lcmlog")
+    lcm_log, can_log = _log(lcm_run / "run.lcmlog"), _log(tmp_path / "can/run.lcmlog")
     for ch in ("HIL_SYNC", "HIL_GYRO", "HIL_THR_CMD", "HIL_FDIR_STATUS"):
         assert len(lcm_log[ch]) == ticks, ch
     assert set(can_log) == {"HIL_TRUTH", "HIL_FLIGHT_VIEW", "HIL_RUN_END"}
     assert lcm_s["bus_kind"] == "lcm" and can_s["bus_kind"] == "can"
     assert lcm_s["detections"] and lcm_s["detections"][0]["thruster"] == "X+"
     _same_outcome(lcm_s, can_s)
-    # the flight's records agree tick by tick on what it measured and commanded
-    la = [json.loads(x) for x in (tmp_path / "lcm/flight.jsonl").read_text().splitlines()]
-    ca = [json.loads(x) for x in (tmp_path / "can/flight.jsonl").read_text().splitlines()]
-    key = ("tick", "omega_meas_B_rad_s", "on_ms")
-    assert [{k: r.get(k) for k in key} for r in la] == [{k: r.get(k) for k in key} for r in ca]
+    # tick by tick: what the flight measured, estimated and commanded, and the plant's truth
+    la, ca = _jsonl(lcm_run / "flight.jsonl"), _jsonl(tmp_path / "can/flight.jsonl")
+    series = ("flight/omega_meas_deg_s", "flight/omega_est_deg_s", "flight/rho_off",
+              "flight/on_ms")
+    assert len(la) == len(ca) == ticks
+    for a, b in zip(la, ca, strict=True):
+        assert (a["tick"], a["detection"]) == (b["tick"], b["detection"])
+        assert {k: a["series"][k] for k in series} == {k: b["series"][k] for k in series}
+    lp = [x for x in _jsonl(lcm_run / "plant.jsonl") if not x.get("final")]
+    cp = [x for x in _jsonl(tmp_path / "can/plant.jsonl") if not x.get("final")]
+    truth = ("tick", "att_err_deg", "rate_err_deg_s", "fuel_kg", "dv_B_m_s")
+    assert [{k: x[k] for k in truth} | {"omega": x["series"]["truth/omega_deg_s"]} for x in lp] \
+        == [{k: x[k] for k in truth} | {"omega": x["series"]["truth/omega_deg_s"]} for x in cp]
     # bus.log of the LCM run holds the CAN frames the messages stand for
-    first = (tmp_path / "lcm/bus.log").read_text().splitlines()[0]
+    first = (lcm_run / "bus.log").read_text().splitlines()[0]
     assert " lcm " in first and "#" in first
 
 
+def test_the_log_replayed_gives_the_records_recording_and_report(lcm_run, tmp_path):
+    """run.lcmlog played by the real lcm-logplayer (`hil record --from-lcm-log`, `hil report
+    --from-lcm-log`) rebuilds the per-tick records the run wrote itself: plant.jsonl and
+    flight.jsonl (the oracle) agree on every field the telemetry carries, the inputs of
+    run.rrd (ticks, series, events) are equal, and the report's plots and table are the same
+    bytes as those made from the JSON lines."""
+    url = f"udpm://239.255.76.67:{_free_port()}?ttl=0"
+    r = subprocess.run([*HIL, "record", "--from-lcm-log", str(lcm_run / "run.lcmlog"),
+                        "--out", str(tmp_path / "rec"), "--lcm-url", url],
+                       capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "150 plant and 150 flight records" in r.stdout and "lcm-logplayer" in r.stdout
+    plant = [x for x in _jsonl(lcm_run / "plant.jsonl") if not x.get("final")]
+    flight = _jsonl(lcm_run / "flight.jsonl")
+    for own, rebuilt in ((plant, _jsonl(tmp_path / "rec/plant.jsonl")),
+                         (flight, _jsonl(tmp_path / "rec/flight.jsonl"))):
+        assert len(rebuilt) == len(own) == 150
+        for a, b in zip(own, rebuilt, strict=True):
+            assert {k: a[k] for k in b} == b, a["tick"]
+            assert {k: a[k] for k in ("tick", "t_s", "series", "events")} == \
+                {k: b[k] for k in ("tick", "t_s", "series", "events")}
+    assert [x["detection"]["thruster"] for x in _jsonl(tmp_path / "rec/flight.jsonl")
+            if x["detection"]] == ["X+"]
+    assert (tmp_path / "rec/run.rrd").stat().st_size > 10_000
+    reports = {}
+    for name, extra in (("json", []), ("lcm", ["--from-lcm-log", "--lcm-url", url])):
+        r = subprocess.run([*HIL, "report", str(lcm_run), "--out", str(tmp_path / name),
+                            *extra], capture_output=True, text=True, cwd=REPO, timeout=300)
+        assert r.returncode == 0, r.stdout + r.stderr
+        reports[name] = {p.name: p.read_bytes() for p in (tmp_path / name).iterdir()
+                         if p.suffix in (".png", ".json")}
+    assert len(reports["json"]) == 5 and reports["lcm"] == reports["json"]
+    assert "per-tick data: run.lcmlog replayed by lcm-logplayer" in \
+        (tmp_path / "lcm/report.md").read_text()
+
+
 def test_reference_scenario_over_lcm_has_its_verdict(url, tmp_path):
-    """S000-nofire (a reference scenario) in lockstep over LCM: its expectations met, the
-    verdict the reference tier asserts over vcan."""
-    s = _run([str(REPO / "configs/scenarios/S000-nofire.yaml"), "--bus", "lcm",
-              "--lcm-url", url], tmp_path / "ls")
+    """S000-nofire (a reference scenario) through `hil run-all --bus lcm`, in lockstep over
+    LCM: its expectations met, the verdict the reference tier asserts over vcan, and the
+    report of the set."""
+    r = subprocess.run([*HIL, "run-all", "--bus", "lcm", "--lcm-url", url, "--only",
+                        "S000-nofire", "--out", str(tmp_path / "all")], capture_output=True,
+                       text=True, cwd=REPO, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "run-all: every expectation holds" in r.stdout
+    s = json.loads((tmp_path / "all/S000-nofire/summary.json").read_text())
+    assert (s["bus_kind"], s["lcm_url"], s["mode"]) == ("lcm", url, "lockstep")
     assert s["verdict"] == "passed" and s["expectations_met"], s["expectation_failures"]
+    rows = json.loads((tmp_path / "all/report/report.json").read_text())["rows"]
+    assert [(x["scenario"], x["correct"]) for x in rows] == [("S000-nofire", True)]
+
+
+def test_campaign_sample_over_lcm_agrees_with_in_process(tmp_path):
+    """`hil campaign --bus lcm`: a sampled run over LCM detects what the in-process run
+    did (the same comparison `--bus` makes over vcan)."""
+    text = (REPO / "configs/campaigns/ci-generic.yaml").read_text()
+    c = tmp_path / "c.yaml"
+    c.write_text(text.replace("runs: 24", "runs: 2") + "bus_sample: 1\n")
+    out = tmp_path / "out"
+    r = subprocess.run([*HIL, "campaign", str(c), "--workers", "1", "--out", str(out),
+                        "--no-progress", "--bus", "lcm"], capture_output=True, text=True,
+                       cwd=REPO, timeout=600)
+    assert "bus: 1/1 sampled runs agree with the in-process result" in r.stdout, (
+        r.stdout + r.stderr)
+    [res] = json.loads((out / "bus.json").read_text())
+    assert res["agree"] and res["bus_kind"] == "lcm"
 
 
 def test_real_time_over_lcm_detects_the_fault(url, tmp_path):
