@@ -85,17 +85,36 @@ def node_filters(node: Node) -> list[dict[str, Any]]:
     return [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in consumed_ids(node)]
 
 
+def udp_channel(channel: str) -> tuple[str, int | None]:
+    """udp_multicast's channel: ``GROUP`` or ``GROUP:PORT`` for an IPv4 group (python-can
+    binds every such socket to one UDP port, and Linux hands a datagram for a group joined on
+    the host to every socket bound to its port: two runs on one host keep apart by their
+    ports, not by their groups). BusError (one line) for a bad port."""
+    group, sep, port = channel.rpartition(":")
+    if not sep or group.count(".") != 3:
+        return channel, None  # a group alone (IPv6 groups hold colons: no port form)
+    if not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise BusError(f"bus: udp_multicast channel {channel!r}: expected GROUP or GROUP:PORT "
+                       f"with a port 1-65535, got port {port!r}")
+    return group, int(port)
+
+
 def open_bus(cfg: BusConfig | None = None) -> can.BusABC:
     """Open the configured python-can bus; BusError (one line) if it cannot be opened."""
     cfg = cfg or BusConfig()
     kwargs = dict(cfg.kwargs)
+    channel = cfg.channel
+    if cfg.interface == "udp_multicast":
+        channel, port = udp_channel(channel)
+        if port is not None:
+            kwargs["port"] = port
     if cfg.interface not in ("socketcan", "virtual", "udp_multicast"):
         kwargs.setdefault("bitrate", cfg.bitrate)  # real adapters configure their bit rate
     if cfg.fd:
         kwargs["fd"] = True
     try:
         return can.Bus(interface=BACKENDS.get(cfg.interface, cfg.interface),
-                       channel=cfg.channel, **kwargs)
+                       channel=channel, **kwargs)
     except (OSError, can.CanError, ImportError, ValueError, NotImplementedError) as exc:
         hint = _HINTS.get(cfg.interface, "")
         raise BusError(

@@ -14,7 +14,7 @@ export RERUN_ANALYTICS=0
 JOBS=${HIL_TEST_JOBS:-2}
 PYTEST=(.venv/bin/python -m pytest -q -p no:cacheprovider)
 XDIST=()
-[ "$JOBS" -gt 1 ] && XDIST=(-n "$JOBS" --dist loadgroup)  # groups: tests/conftest.py
+[ "$JOBS" -gt 1 ] && XDIST=(-n "$JOBS" --dist loadfile)  # a file's tests in one worker (its fixtures once)
 
 echo "== unit tests"
 "${PYTEST[@]}" "${XDIST[@]}" -m "not vcan and not reference and not lcm" "$@"

@@ -17,6 +17,7 @@ import json
 import socket
 from pathlib import Path
 
+import can
 import pytest
 
 from bus.transport import BusConfig
@@ -47,3 +48,33 @@ def test_lockstep_fifty_ticks_udp_multicast(udp_cfg):
     """The vcan/virtual suite, unchanged, between two processes over udp_multicast (each
     port drops its own frames looped back by the multicast socket; the counts are exact)."""
     suite.test_lockstep_fifty_ticks((udp_cfg, suite.ProcessPeer(udp_cfg)))
+
+
+def test_group_port_channels_keep_two_runs_on_one_host_apart():
+    """``GROUP:PORT``: two buses on one group but different ports never hear each other (on
+    one port they do, whatever group each joined: the reason for the port form); a bad port is
+    a one-line BusError."""
+    from bus.errors import BusError
+    from bus.transport import open_bus, udp_channel
+    from tests.udp import free_udp_port
+
+    assert udp_channel("239.74.1.2") == ("239.74.1.2", None)
+    assert udp_channel("239.74.1.2:45000") == ("239.74.1.2", 45000)
+    with pytest.raises(BusError, match="expected GROUP or GROUP:PORT"):
+        open_bus(BusConfig(interface="udp_multicast", channel="239.74.1.2:70000"))
+    p1, p2 = free_udp_port(), free_udp_port()
+    while p2 == p1:
+        p2 = free_udp_port()
+
+    def heard(tx_channel: str, rx_channel: str) -> bool:
+        tx = open_bus(BusConfig(interface="udp_multicast", channel=tx_channel))
+        rx = open_bus(BusConfig(interface="udp_multicast", channel=rx_channel))
+        try:
+            tx.send(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False))
+            return rx.recv(timeout=0.5) is not None
+        finally:
+            tx.shutdown()
+            rx.shutdown()
+
+    assert heard(f"239.74.9.9:{p1}", f"239.74.9.9:{p1}")
+    assert not heard(f"239.74.9.9:{p1}", f"239.74.9.9:{p2}")

@@ -9,7 +9,6 @@ written onto vcan0 (marker ``vcan``).
 from __future__ import annotations
 
 import os
-import random
 import re
 import subprocess
 import sys
@@ -25,6 +24,7 @@ from bus.codec import FaultAck, Gyro, Sync
 from bus.transport import BusConfig, Port, open_bus
 from hil.config import REPO_ROOT, load_scenario
 from hil.run import BusMonitor
+from tests.udp import private_udp_channel
 
 README = REPO_ROOT / "README.md"
 
@@ -73,7 +73,7 @@ def test_a_lockstep_run_log_spans_the_simulated_duration(tmp_path):
     """A whole lockstep run between OS processes (udp_multicast: no CAN needed here)."""
     scen = REPO_ROOT / "configs/scenarios/S000-nofire.yaml"
     sc = load_scenario(scen)
-    group = f"239.75.{random.randrange(1, 255)}.{random.randrange(1, 255)}"
+    group = private_udp_channel("239.75")
     r = subprocess.run([sys.executable, "-m", "hil.cli", "run", str(scen), "--out",
                         str(tmp_path), "--interface", "udp_multicast", "--channel", group],
                        capture_output=True, text=True, timeout=600, cwd=REPO_ROOT,

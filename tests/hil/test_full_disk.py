@@ -14,12 +14,12 @@ import os
 import shutil
 import subprocess
 import sys
-import uuid
 from pathlib import Path
 
 import pytest
 
 from hil.recorder import JsonlWriter, OutputLost
+from tests.udp import private_udp_channel
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -60,7 +60,7 @@ def test_a_full_tmpfs_leaves_a_failed_summary_and_no_torn_line(tmp_path) -> None
     scen = tmp_path / "long.yaml"
     scen.write_text("name: full\nvehicle: orel\nduration_s: 600.0\nseed: 2\n"
                     "initial: {attitude: {axis: [1, 0, 0], angle_deg: 10.0}}\n")
-    channel = f"239.74.{uuid.uuid4().int % 200 + 20}.{uuid.uuid4().int % 200 + 20}"
+    channel = private_udp_channel("239.73")
     out = disk / "run"
     script = (f"mount -t tmpfs -o size=1m tmpfs {disk} && "
               f"{sys.executable} -m hil.cli run {scen} --out {out} --interface udp_multicast "

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import subprocess
 import sys
 
@@ -17,12 +16,13 @@ import pytest
 
 from hil.config import REPO_ROOT, SCENARIO_DIR, load_scenario
 from hil.records import fdir_actions
+from tests.udp import private_udp_channel
 
 pytestmark = pytest.mark.slow
 
 
 def _run(name: str, out) -> dict:
-    group = f"239.76.{random.randrange(1, 255)}.{random.randrange(1, 255)}"
+    group = private_udp_channel("239.76")
     r = subprocess.run([sys.executable, "-m", "hil.cli", "run", name, "--out", str(out),
                         "--interface", "udp_multicast", "--channel", group],
                        capture_output=True, text=True, timeout=900, cwd=REPO_ROOT,

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import re
 import signal
 import subprocess
@@ -31,6 +30,7 @@ import pytest
 
 from hil import uml
 from hil.config import REPO_ROOT
+from tests.udp import private_udp_channel
 
 HIL = [sys.executable, "-m", "hil.cli"]
 RERUN = Path(sys.executable).parent / "rerun"
@@ -47,7 +47,7 @@ def _uml_ok() -> bool:
 
 
 def _udp() -> list[str]:
-    group = f"239.74.{random.randrange(1, 255)}.{random.randrange(1, 255)}"
+    group = private_udp_channel("239.74")
     return ["--interface", "udp_multicast", "--channel", group]
 
 
