@@ -141,7 +141,7 @@ class LcmPort(Port):
         return True
 
     def send(self, *msgs) -> int:
-        frames = [fr for msg in msgs for fr in self.protect(msg)]
+        frames = self.frames_to_send(msgs)  # with the authenticators (bus.secoc)
         if self.send_hook is not None:
             frames = self.send_hook(frames)
         before = self.tx_frames

@@ -229,6 +229,22 @@ class Port:
             out.append(Frame(fr.arbitration_id, self.protector.protect(f_def.data_id, fr.data)))
         return out
 
+    def frames_to_send(self, msgs) -> list[Frame]:
+        """The protected frames of ``msgs`` in order, with an authenticator after each
+        secured message when the port authenticates (``bus.secoc``); every transport sends
+        these."""
+        if self.auth is None:
+            return [fr for msg in msgs for fr in self.protect(msg)]
+        now = self.now_s()
+        frames: list[Frame] = []
+        for msg in msgs:
+            plain = encode(msg)
+            frames += self.protect(msg, plain)
+            mac = self.auth.sign(msg, now, plain)
+            if mac is not None:
+                frames += self.protect(mac)
+        return frames
+
     def send(self, *msgs: Message) -> int:
         """Encode, protect and send every frame of ``msgs`` (in order); returns frames sent.
 
@@ -236,17 +252,7 @@ class Port:
         EncodeError for illegal values (before anything is sent). A transmit failure (buffer
         full, interface down) is counted in ``tx_errors``, not raised: the peer sees a gap.
         """
-        if self.auth is None:
-            frames = [fr for msg in msgs for fr in self.protect(msg)]
-        else:  # each secured message followed by its authenticator (bus.secoc)
-            now = self.now_s()
-            frames = []
-            for msg in msgs:
-                plain = encode(msg)
-                frames += self.protect(msg, plain)
-                mac = self.auth.sign(msg, now, plain)
-                if mac is not None:
-                    frames += self.protect(mac)
+        frames = self.frames_to_send(msgs)
         if self.send_hook is not None:
             self.release_due()
             frames = self.send_hook(frames)

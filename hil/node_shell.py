@@ -71,8 +71,9 @@ def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
     (lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log`` when
     ``settings.bus_log``). On CAN: receive filters from the catalog (only the identifiers the
     node consumes; in the kernel on SocketCAN) and at most ``MAX_FRAMES_PER_POLL`` frames per
-    poll. With a key file, THR_CMD and FAULT_CMD are signed and checked (on CAN; not yet
-    over LCM, whose sets carry no authenticator frame)."""
+    poll. With a key file, THR_CMD and FAULT_CMD are signed and checked (on both buses: over
+    LCM the authenticator is a message of its own channel, as it is a frame of its own on
+    CAN)."""
     s = settings
     receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
     if s.interface == "lcm":  # LCM: the channel is the provider URL (docs/lcm.md)
@@ -86,7 +87,7 @@ def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
         logger = BusLogger(out / f"{name}.bus.log", channel=s.channel) if s.bus_log else None
         port = Port(open_bus(cfg), receiver=receiver, logger=logger,
                     max_frames_per_poll=MAX_FRAMES_PER_POLL)
-    if s.key_file is not None and s.interface != "lcm":  # SecOC on CAN only (docs/lcm.md)
+    if s.key_file is not None:  # SecOC on both buses (docs/hostile-bus.md, docs/lcm.md)
         from bus.secoc import Authenticator
         from hil.secoc_key import read_key
 

@@ -136,7 +136,7 @@ def send_and_wait(cmd: FaultCmd, interface: str, channel: str, timeout_s: float,
     else:
         port = Port(open_bus(BusConfig(interface=interface, channel=channel,
                                        kwargs={"can_filters": node_filters(Node.PANEL)})))
-    if key is not None and interface != "lcm":  # FAULT_CMD authenticated on CAN (bus.secoc)
+    if key is not None:  # FAULT_CMD authenticated (bus.secoc), on CAN and over LCM
         from bus.secoc import Authenticator
 
         port.auth = Authenticator(key)
