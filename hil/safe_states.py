@@ -11,7 +11,7 @@ from the scenario's ``safety:`` block with the node's command-line overrides
 from __future__ import annotations
 
 from bus.catalog import Node as NodeId
-from bus.codec import ThrCmd
+from bus.codec import Heartbeat, ThrCmd
 from bus.protocol import HeartbeatMonitor, PeerBack, PeerLost
 from hil.config import SafetyCfg, Scenario
 from hil.node_settings import NodeSettings
@@ -49,8 +49,11 @@ class FlightLinkWatch:
 
     The flight is lost when its heartbeat has been silent for ``heartbeat_lost_s`` (counted
     from ``start_s`` until a first beat), or, once a THR_CMD has come, when none came for
-    ``thr_cmd_lost_ticks`` ticks of ``tick_s``. ``poll(now_s)`` returns the reasons that newly
-    hold (each once per loss); ``on_message`` returns the events of the link coming back.
+    ``thr_cmd_lost_ticks`` ticks of ``tick_s``. A flight that beats but whose commands never
+    arrive (they are all refused: forged sets ahead of them took their alive counters) is lost
+    too: ``heartbeat_lost_s`` plus those ticks after its first beat with no THR_CMD yet.
+    ``poll(now_s)`` returns the reasons that newly hold (each once per loss); ``on_message``
+    returns the events of the link coming back.
     """
 
     def __init__(self, tick_s: float, thr_cmd_lost_ticks: int, heartbeat_lost_s: float,
@@ -62,12 +65,17 @@ class FlightLinkWatch:
                                     missed_limit=1)
         self.last_cmd_s: float | None = None
         self.cmd_lost = False
+        self.heartbeat_lost_s = heartbeat_lost_s
+        self.first_beat_s: float | None = None
 
     def on_message(self, msg, t_s: float) -> list[str]:
         out = [f"flight heartbeat back at {t_s:.2f} s" for ev in self.mon.on_message(msg, t_s)
                if isinstance(ev, PeerBack)]
         if isinstance(msg, ThrCmd):
             self.last_cmd_s, self.cmd_lost = t_s, False
+        elif self.first_beat_s is None and isinstance(msg, Heartbeat) and \
+                msg.node == NodeId.FLIGHT:
+            self.first_beat_s = t_s
         return out
 
     def poll(self, now_s: float) -> list[str]:
@@ -77,6 +85,11 @@ class FlightLinkWatch:
                 now_s - self.last_cmd_s > self.cmd_limit_s:
             self.cmd_lost = True
             out.append(f"no THR_CMD for {self.thr_cmd_lost_ticks} ticks")
+        elif self.last_cmd_s is None and self.first_beat_s is not None and not self.cmd_lost \
+                and now_s - self.first_beat_s > self.heartbeat_lost_s + self.cmd_limit_s:
+            self.cmd_lost = True
+            out.append(f"no THR_CMD in {now_s - self.first_beat_s:.2f} s since the flight's "
+                       "first heartbeat")
         return out
 
     @property

@@ -405,3 +405,21 @@ def test_lockstep_plant_goes_safe_after_the_configured_missed_commands(tmp_path)
     assert recs[3]["events"][-1] == ("safe: all valves and manifolds closed at 0.60 s "
                                      "(no THR_CMD for 4 ticks)")
     assert recs[0]["config"]["safety"]["thr_cmd_lost_ticks"] == 4
+
+
+def test_flight_link_watch_a_beating_flight_whose_commands_never_arrive_is_lost() -> None:
+    """The flight beats but none of its THR_CMD get through (a forger ahead of it took their
+    alive counters: docs/hostile-bus.md): lost once heartbeat_lost_s plus the command ticks
+    passed since its first beat, said once; a command that then arrives clears it."""
+    w = FlightLinkWatch(tick_s=0.2, thr_cmd_lost_ticks=3, heartbeat_lost_s=1.0)
+    beat = Heartbeat(Node.FLIGHT, NodeState.RUN)
+    t = 0.5
+    while t < 2.1:  # first beat at 0.5 s: lost after 0.5 + 1.0 + 0.6 = 2.1 s
+        w.on_message(beat, t)
+        assert w.poll(t) == []
+        t += 0.2
+    assert w.poll(2.11) == ["no THR_CMD in 1.61 s since the flight's first heartbeat"]
+    w.on_message(beat, 2.9)
+    assert w.poll(3.0) == []
+    w.on_message(ThrCmd(10, (0,) * 6, 1, 10), 3.1)
+    assert w.poll(3.2) == [] and not w.cmd_lost
