@@ -380,6 +380,7 @@ def _public(report: dict) -> dict:
 # Over LCM: the runs and the allocator; the raw-frame ping-pong and the bus load are CAN's
 # (bench/bench_lcm.py measures LCM's latency).
 LCM_PARTS = ("realtime", "lockstep", "allocator")
+DEFAULT_HOSTILE_DURATION_S = 20.0
 
 
 def _parse_parts(text: str | None, bus: str = "can") -> tuple[str, ...]:
@@ -422,6 +423,16 @@ def _check_args(args) -> None:
         args.bitrate = BITRATE_BPS
     if args.pings is None:
         args.pings = DEFAULT_PINGS
+    if "hostile" not in args.parts:
+        for flag, val in (("--hostile-loads", args.hostile_loads),
+                          ("--hostile-duration", args.hostile_duration)):
+            if val is not None:
+                raise UsageError(f"hil bench: {flag}: expected it only with --parts hostile, "
+                                 f"got {val!r} with --parts {','.join(args.parts)}")
+    if args.hostile_loads is None:
+        args.hostile_loads = ",".join(DEFAULT_HOSTILE_LOADS)
+    if args.hostile_duration is None:
+        args.hostile_duration = DEFAULT_HOSTILE_DURATION_S
     for name, value, lo in (("--duration", args.duration, 2.0),
                             ("--lockstep-duration", args.lockstep_duration, 1.0),
                             ("--hostile-duration", args.hostile_duration, 2.0),
@@ -476,8 +487,10 @@ def _cmd_bench(args) -> int:
             ",".join(args.parts)]
     argv += (["--bus", "lcm", "--lcm-url", args.channel] if args.bus == "lcm" else
              ["--pings", str(args.pings), "--bitrate", str(args.bitrate), "--channel",
-              args.channel, "--hostile-loads", args.hostile_loads, "--hostile-duration",
-              str(args.hostile_duration)])
+              args.channel])
+    if "hostile" in args.parts:
+        argv += ["--hostile-loads", args.hostile_loads, "--hostile-duration",
+                 str(args.hostile_duration)]
     argv += ["--stress"] * bool(args.stress) + ["--rt"] * bool(args.rt) + \
         ["--no-plots"] * bool(args.no_plots)
     rc = _maybe_in_uml(args, argv)
@@ -520,12 +533,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--parts",
                    help=f"comma list of the parts to measure, of {','.join(PARTS)} (default "
                         f"{','.join(DEFAULT_PARTS)}; with --bus lcm {','.join(LCM_PARTS)})")
-    p.add_argument("--hostile-loads", default=",".join(DEFAULT_HOSTILE_LOADS),
-                   metavar="LOAD,...",
+    p.add_argument("--hostile-loads", metavar="LOAD,...",
                    help="hostile part: none or CLASS:RATE (frames/s) per run; CLASS one of "
                         f"{', '.join(FLOOD_CLASSES)} (default: {','.join(DEFAULT_HOSTILE_LOADS)})")
-    p.add_argument("--hostile-duration", type=float, default=20.0,
-                   help="hostile part: seconds of each real-time run (default 20)")
+    p.add_argument("--hostile-duration", type=float,
+                   help=f"hostile part: seconds of each real-time run (default "
+                        f"{DEFAULT_HOSTILE_DURATION_S:g})")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--interface", default="socketcan", help=argparse.SUPPRESS)
     p.add_argument("--channel", help="SocketCAN channel (default vcan0)")

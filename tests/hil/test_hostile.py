@@ -105,3 +105,15 @@ def test_the_table_shows_every_figure_of_a_run() -> None:
                    "native kernel"):
         assert needle in text, needle
     assert bench_table.check_figures(rep, ("hostile",)) == []
+
+
+def test_hostile_options_without_the_hostile_part_are_refused(capsys):
+    from hil import bench
+
+    assert bench.main(["bench", "--parts", "allocator", "--hostile-loads", "foreign:100"]) == 2
+    assert capsys.readouterr().err.strip().endswith(
+        "hil bench: --hostile-loads: expected it only with --parts hostile, got 'foreign:100' "
+        "with --parts allocator")
+    assert bench.main(["bench", "--hostile-duration", "5"]) == 2
+    assert "--hostile-duration: expected it only with --parts hostile, got 5.0" in \
+        capsys.readouterr().err
