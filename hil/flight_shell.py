@@ -53,6 +53,17 @@ from hil.scheduler import (
 )
 
 
+def with_actuation_phase(vehicle, phase_s: float):
+    """The vehicle whose onboard model expects each command ``phase_s`` later than its
+    nominal command latency (the plant applies it then: ``NodeSettings.actuation_phase_s``)."""
+    if phase_s <= 0.0:
+        return vehicle
+    om = vehicle.flight.onboard_model
+    om = om.model_copy(update={"command_latency_ms": om.command_latency_ms + 1000.0 * phase_s})
+    flight = vehicle.flight.model_copy(update={"onboard_model": om})
+    return vehicle.model_copy(update={"flight": flight})
+
+
 class FlightShell:
     """Flight process: ``flight.software.FlightSoftware`` behind a CAN port."""
 
@@ -60,7 +71,7 @@ class FlightShell:
         from flight.software import FlightSoftware
 
         self.sc, self.port, self.settings = sc, port, settings
-        self.v = sc.vehicle
+        self.v = with_actuation_phase(sc.vehicle, settings.actuation_phase_s())
         self.h = self.v.timing.tick_s
         self.fs = FlightSoftware(self.v, target=sc.cfg.target,
                                  initial_attitude=sc.cfg.initial.attitude)

@@ -9,10 +9,17 @@ start-up about its scheduling (``sched_note``, ``rt_event``) is added with
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import dataclass, fields
 from typing import Literal
 
-from bus.catalog import HEARTBEAT_PERIOD_S
+from bus.catalog import CATALOG, HEARTBEAT_PERIOD_S
+
+# Real time: THR_CMD(n) takes effect this long after its tick's gyro sample went out
+# (time-triggered actuation, docs/timing.md); lockstep idealises the flight's compute as zero.
+REALTIME_ACTUATION_PHASE_MS = 60.0
+# A phase must leave the command inside its frame's deadline (half a tick).
+ACTUATION_PHASE_MAX_MS = 1000.0 * CATALOG.frame("THR_CMD_0").deadline_s
 
 
 @dataclass(frozen=True)
@@ -43,8 +50,19 @@ class NodeSettings:
     telemetry_url: str | None = None
     start_after: str | None = None
     key_file: str | None = None
+    actuation_phase_ms: float | None = None
     sched_note: str | None = None
     rt_event: str | None = None
+
+    def actuation_phase_s(self) -> float:
+        """When THR_CMD(n) takes effect after its tick's sample is out, s (0: on arrival).
+
+        ``--actuation-phase-ms``, else ``REALTIME_ACTUATION_PHASE_MS`` in real time and 0 in
+        lockstep. Plant and flight get the same value (the flight's onboard model adds it to
+        its command latency)."""
+        if self.actuation_phase_ms is not None:
+            return self.actuation_phase_ms / 1000.0
+        return REALTIME_ACTUATION_PHASE_MS / 1000.0 if self.mode == "realtime" else 0.0
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> NodeSettings:
@@ -67,6 +85,18 @@ def _ticks(text: str) -> int:
     return n
 
 
+def actuation_phase_ms(text: str) -> float:
+    """``--actuation-phase-ms``: finite, 0 <= x < the THR_CMD deadline."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected milliseconds, got {text!r}") from None
+    if not (math.isfinite(x) and 0.0 <= x < ACTUATION_PHASE_MAX_MS):
+        raise argparse.ArgumentTypeError(
+            f"expected 0 <= ms < {ACTUATION_PHASE_MAX_MS:g} (the THR_CMD deadline), got {text}")
+    return x
+
+
 def _heartbeat_s(text: str) -> float:
     try:
         x = float(text)
@@ -76,6 +106,13 @@ def _heartbeat_s(text: str) -> float:
         raise argparse.ArgumentTypeError(
             f"expected > the heartbeat period {HEARTBEAT_PERIOD_S:g} s, got {x:g}")
     return x
+
+
+ACTUATION_PHASE_HELP = (
+    f"THR_CMD(n) takes effect MS after tick n's gyro sample went out, whenever it arrived "
+    f"before (time-triggered; a later one is applied on arrival, counted as late, and its tick "
+    f"kept out of the FDIR evidence); the flight's onboard model assumes the same; 0: on "
+    f"arrival (default: {REALTIME_ACTUATION_PHASE_MS:g} in real time, 0 in lockstep)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -110,6 +147,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--align-samples", type=int, default=3,
                    help="real time: gyro samples observed to place the flight's tick grid")
     p.add_argument("--rt-priority", action="store_true", help="try SCHED_FIFO and mlockall")
+    p.add_argument("--actuation-phase-ms", type=actuation_phase_ms, metavar="MS",
+                   help=ACTUATION_PHASE_HELP)
     p.add_argument("--sched", choices=("auto", "other", "batch"), default="auto",
                    help="scheduler policy without --rt-priority (auto: plant SCHED_BATCH, "
                         "flight SCHED_OTHER, see hil.process_policy.set_policy)")

@@ -81,6 +81,10 @@ class PlantShell:
         # Whether the flight's last command was applied as sent; the next GYRO says so
         # (GyroStatus.CMD_NOT_APPLIED) and the flight keeps that tick out of its evidence.
         self.cmd_applied = True
+        # Real time, time-triggered: whether the last command came before its actuation time
+        # (a late one is applied on arrival, and the next GYRO says CMD_NOT_APPLIED too).
+        self.cmd_on_time = True
+        self.late_actuations = 0
         self.last_applied: ThrCmd | None = None
         self.applied_as_sent: list[list[int]] = []  # [tick, on ms] since the last record
         self.held_ticks = 0  # ticks in a row the last command was repeated (thr_cmd_missing hold)
@@ -257,6 +261,7 @@ class PlantShell:
             rec.update(extra)
         if self.gate is not None:
             rec["command_gate"] = dict(self.gate.counts)
+            rec["late_actuations"] = self.late_actuations
         if self.applied_as_sent:
             rec["thr_cmd_applied"], self.applied_as_sent = self.applied_as_sent, []
         write_record(self, rec)
@@ -270,6 +275,7 @@ class PlantShell:
         lock = PlantLockstep(self.n_thr, reply_timeout_s=a.reply_timeout,
                              lost_after_misses=lost_after, tick_s=self.h,
                              manifold_enable_safe=self.all_open)
+        phase = a.actuation_phase_s()  # 0 unless --actuation-phase-ms
         cpu0 = time.process_time()
         t_wall0 = time.monotonic()
         good_in_a_row = 0
@@ -309,11 +315,12 @@ class PlantShell:
                     self.events.append(f"THR_CMD back at tick {n}: leaving safe state "
                                        f"({good_in_a_row} ticks in a row)")
                 if not self.safe:
-                    self.apply(res.command, self.plant.apply_time(t_n))
+                    self.apply(res.command, self.plant.apply_time(t_n) + phase)
                     self.cmd_applied = True
                     self.held_ticks = 0
             elif res is not None and not self.safe:
-                self.apply(self.missing_command(n, res.command), self.plant.apply_time(t_n),
+                self.apply(self.missing_command(n, res.command),
+                           self.plant.apply_time(t_n) + phase,
                            as_sent=False)
             self.plant.advance_to(t_n + self.h)
             extra = {"rt_factor": round((t_n + self.h) / max(time.monotonic() - t_wall0, 1e-9), 2),
@@ -340,8 +347,13 @@ class PlantShell:
         """Integrate on CLOCK_MONOTONIC; publish each gyro sample when it is due.
 
         The loop sleeps on the bus socket until the next thing that is due (a gyro sample, a
-        record, a heartbeat), at most ``REALTIME_MAX_WAIT_S``, so a THR_CMD wakes it at once
-        and is applied at its kernel receive time. It also wakes ``REALTIME_PRE_WAKE_S``
+        record, a heartbeat), at most ``REALTIME_MAX_WAIT_S``, so a THR_CMD wakes it at once.
+        Actuation is time-triggered: THR_CMD(n) takes effect the actuation phase
+        (``NodeSettings.actuation_phase_s``) after its sample went out, as the flight's onboard
+        model assumes, whatever the flight's compute and the bus took; one received later is
+        applied at its kernel receive time, counted (``late_actuations``) and the next GYRO
+        says CMD_NOT_APPLIED, so that tick is not FDIR evidence. Phase 0: every command is
+        applied at its receive time. It also wakes ``REALTIME_PRE_WAKE_S``
         before each sample and integrates up to there, so that when the sample is due only a
         few milliseconds remain to integrate before it goes out (this replaces a 2 ms
         polling loop that kept busy the one CPU the flight also needs under user-mode Linux).
@@ -359,6 +371,7 @@ class PlantShell:
         gate = self.gate = CommandGate(THR_CMD_DEADLINE_S, self.safety.recover_ticks)
         period, gyro_latency = self.plant.gyro.period_s, self.plant.gyro.latency_s
         cmd_latency = self.sc.cfg.plant.command_latency_ms / 1e3
+        phase = self.settings.actuation_phase_s()
         next_record = self.h
         tick = 0
         s2a: list[float] = []
@@ -370,8 +383,8 @@ class PlantShell:
             self.plant.advance_to(now)
             self.bus_new += bus_fault_fields(self, now)
             # A command applied within the last tick (and its deadline) is the one in force.
-            self.cmd_applied = not self.safe and now - self.last_cmd_tick_s <= \
-                self.h + THR_CMD_DEADLINE_S
+            self.cmd_applied = not self.safe and self.cmd_on_time and \
+                now - self.last_cmd_tick_s <= self.h + THR_CMD_DEADLINE_S
             if not self.cmd_applied and not self.safe and self.last_applied is not None and \
                     self.safety.thr_cmd_missing == "hold" and \
                     self.held_ticks < self.safety.thr_cmd_lost_ticks - 1 and \
@@ -412,7 +425,13 @@ class PlantShell:
                 if isinstance(msg, FaultCmd):
                     self.on_fault_cmd(msg)
                 elif isinstance(msg, ThrCmd):
-                    t_apply = max(rx_sim, self.plant.t) + cmd_latency
+                    # Time-triggered: in force from the tick's sample out + phase; one that
+                    # comes later is applied on arrival and its tick is no evidence.
+                    t_due = None if t_meas is None or phase <= 0.0 else \
+                        t_meas + gyro_latency + phase
+                    t_in = max(rx_sim, self.plant.t)
+                    late = t_due is not None and t_in > t_due
+                    t_apply = (t_in if t_due is None or late else t_due) + cmd_latency
                     if self.safe and watch.alive and gate.may_leave_safe():
                         self.safe = False
                         self.events.append(f"THR_CMD back at {rx_sim:.2f} s: leaving safe state "
@@ -420,13 +439,18 @@ class PlantShell:
                     if not self.safe:
                         self.apply(msg, t_apply)
                         self.held_ticks = 0
+                        self.cmd_on_time = not late
+                        self.late_actuations += late
                     if t_meas is not None:
                         s2a.append(t_apply - t_meas)
-                        chain.append({"tick": msg.tick, "gyro_seq": msg.gyro_seq,
-                                      "sample_s": round(t_meas, 6),
-                                      "published_s": round6(self.gyro_pub.get(msg.gyro_seq)),
-                                      "received_s": round(rx_sim, 6),
-                                      "applied_s": round(t_apply, 6)})
+                        link = {"tick": msg.tick, "gyro_seq": msg.gyro_seq,
+                                "sample_s": round(t_meas, 6),
+                                "published_s": round6(self.gyro_pub.get(msg.gyro_seq)),
+                                "received_s": round(rx_sim, 6),
+                                "applied_s": round(t_apply, 6)}
+                        if late:
+                            link["late"] = True
+                        chain.append(link)
         self.record_end(time.monotonic() - t0, tick, time.process_time() - cpu0, t0)
         return 0
 

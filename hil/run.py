@@ -400,6 +400,8 @@ def _node_cmd(node: str, scenario: Path, out: Path, args,
         cmd += ["--telemetry-url", args.telemetry]
     if getattr(args, "rt_priority", False):
         cmd.append("--rt-priority")
+    if getattr(args, "actuation_phase_ms", None) is not None:
+        cmd += ["--actuation-phase-ms", repr(args.actuation_phase_ms)]
     return cmd
 
 
@@ -834,9 +836,13 @@ def _up_with_console(argv: list[str], out: Path) -> int:
 
 
 def _bus_args(p) -> None:
+    from hil.node_settings import ACTUATION_PHASE_HELP, actuation_phase_ms
+
     p.add_argument("--rt", dest="rt_priority", action="store_true",
                    help="ask SCHED_FIFO and locked memory for flight (50) and plant (40); the "
                         "nodes say in their first events what they got")
+    p.add_argument("--actuation-phase-ms", type=actuation_phase_ms, metavar="MS",
+                   help=ACTUATION_PHASE_HELP)
     p.add_argument("--interface",
                    help="python-can interface (default socketcan; udp_multicast, pcan, ...)")
     p.add_argument("--channel", help="bus channel (default vcan0)")

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from hil.config import SCENARIO_DIR, load_scenario
 from hil.errors import UsageError
+from hil.node_settings import ACTUATION_PHASE_HELP, actuation_phase_ms
 from hil.verdict import EXIT_RUN_FAILED
 
 INSIDE_UML_ENV = "HIL_INSIDE_UML"
@@ -188,6 +189,10 @@ def _child_argv(args, out: Path, group: list[Path]) -> list[str]:
             "--no-report", "--only", *[p.stem for p in group]]
     if args.bus is not None:
         argv += ["--bus", args.bus]
+    if args.rt_priority:
+        argv.append("--rt")
+    if args.actuation_phase_ms is not None:
+        argv += ["--actuation-phase-ms", repr(args.actuation_phase_ms)]
     return argv + (["--lcm-url", args.lcm_url] if args.lcm_url else [])
 
 
@@ -292,4 +297,8 @@ def register(sub) -> None:
                         "default: the scenarios' bus:, else can")
     p.add_argument("--lcm-url", metavar="URL",
                    help="LCM provider with the lcm bus (default udpm://239.255.76.67:7667?ttl=0)")
+    p.add_argument("--rt", dest="rt_priority", action="store_true",
+                   help="ask SCHED_FIFO and locked memory for flight (50) and plant (40)")
+    p.add_argument("--actuation-phase-ms", type=actuation_phase_ms, metavar="MS",
+                   help=ACTUATION_PHASE_HELP)
     p.set_defaults(func=_cmd_run_all)

@@ -88,6 +88,11 @@ def realtime_figures(plant_records: list[PlantRecord], flight_records: list[Flig
         "stage_ms": stages,
         "tick_share": share,
         "s2a_ms": stats_ms(c["applied_s"] - c["sample_s"] for c in chains),
+        # Sample to THR_CMD at the plant: the chain's own latency (the plant then holds the
+        # command until its actuation time, so s2a is the actuation phase when in time).
+        "cmd_arrival_ms": stats_ms(c["received_s"] - c["sample_s"] for c in chains),
+        # Commands that came after their actuation time (applied on arrival, no evidence).
+        "late_actuations": sum(1 for c in chains if c.get("late")),
         "gyro_publish_ms": stats_ms(pub),
         "flight_turnaround_ms": stats_ms(turn),
         "firing_ticks": len(on),
@@ -103,7 +108,7 @@ def timing_summary(plant_records: list[PlantRecord], flight_records: list[Flight
         return {}
     f = realtime_figures(plant_records, flight_records, tick_s, warmup_ticks=0)
     keep = ("release_jitter_ms", "gyro_wait_ms", "late_gyro", "stage_ms", "tick_share",
-            "s2a_ms", "gyro_publish_ms", "flight_turnaround_ms")
+            "s2a_ms", "cmd_arrival_ms", "late_actuations", "gyro_publish_ms", "flight_turnaround_ms")
     return {k: f[k] for k in keep}
 
 

@@ -147,6 +147,24 @@ def test_realtime_60_s_no_overrun_with_jitter_and_compute(tmp_path) -> None:
     assert len(t["stage_ms"]) >= 6, list(t["stage_ms"])  # every flight stage is timed
     for name, d in t["stage_ms"].items():
         _figures(d, f"timing.stage_ms.{name}")
+    # Time-triggered actuation (the default phase of real time): a command in time takes effect
+    # exactly the phase after its sample went out, a late one on arrival, and is counted.
+    from hil.config import load_scenario
+    from hil.node_settings import REALTIME_ACTUATION_PHASE_MS
+
+    g_s = load_scenario(scen).vehicle.gyro.latency_ms / 1e3
+    links = [c for x in _jsonl(out / "plant.jsonl") for c in x.get("chain", [])]
+    assert len(links) >= 290
+    late = [c for c in links if c.get("late")]
+    for c in links:
+        if c.get("late"):
+            assert c["applied_s"] == pytest.approx(c["received_s"], abs=0.011), c
+            assert c["applied_s"] > c["sample_s"] + g_s + REALTIME_ACTUATION_PHASE_MS / 1e3
+        else:
+            assert c["applied_s"] - c["sample_s"] == pytest.approx(
+                g_s + REALTIME_ACTUATION_PHASE_MS / 1e3, abs=2e-6), c
+            assert c["received_s"] <= c["applied_s"] + 1e-6, c
+    assert t["late_actuations"] == len(late)
 
 
 def test_rt_flag_asks_sched_fifo_and_says_what_it_got(tmp_path) -> None:
