@@ -229,6 +229,14 @@ class DetectorCfg(_Model):
     # added in quadrature with the absolute dead zone. A residual across every commanded
     # thruster's direction (a leak on another channel) is then not hidden by their errors.
     relative_dead_zone_across: float | None = Field(default=None, ge=0.0, lt=1.0)
+    # None: as above. A number kappa: the dead zone is the ellipsoid of what the effectiveness
+    # learning still does not know, dw^T (dz^2 I + kappa^2 A P A^T)^-1 dw < 1, A the burning
+    # thrusters' rate-change columns mu_j eff_j and P the covariance of their learnt thrust
+    # scales: wide on a thruster's first firings (the prior, +/-20 %), as narrow as the
+    # learning has made it after (the fixed fraction above stays wide for ever, and a
+    # stuck-on thruster that the controller fights hides inside it). Needs
+    # effectiveness_bound > 0; replaces relative_dead_zone (and _across).
+    relative_dead_zone_sigma: float | None = Field(default=None, gt=0.0, le=10.0)
     # The command latency is learnt online with the effectiveness (one more state of the same
     # filter: the sensitivity of every burn to the latency, from a second burn timeline), within
     # +/- this many ms of the onboard model's nominal latency, and the model predicts with it.
@@ -239,6 +247,15 @@ class DetectorCfg(_Model):
     @model_validator(mode="after")
     def _latency_needs_the_learning(self) -> DetectorCfg:
         # The latency is a state of the effectiveness filter: without it, it would be ignored.
+        if self.relative_dead_zone_sigma is not None and (
+                self.relative_dead_zone > 0.0 or self.relative_dead_zone_across is not None):
+            raise _FieldError("relative_dead_zone_sigma", "no relative_dead_zone or "
+                              "relative_dead_zone_across with it (it replaces them)",
+                              self.relative_dead_zone_sigma)
+        if self.relative_dead_zone_sigma is not None and self.effectiveness_bound <= 0.0:
+            raise _FieldError("relative_dead_zone_sigma", "none when effectiveness_bound is 0 "
+                              "(the dead zone is the learning's uncertainty)",
+                              self.relative_dead_zone_sigma)
         if self.learn_latency_ms > 0.0 and self.effectiveness_bound <= 0.0:
             raise _FieldError("learn_latency_ms", "0 when effectiveness_bound is 0 (the latency "
                               "is learnt with the effectiveness)", self.learn_latency_ms)

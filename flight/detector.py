@@ -295,6 +295,24 @@ class Effectiveness:
         if self.latency_bound_s > 0.0:
             self.x[2 * n] = self.latency_s
 
+    def rate_change_cov(self, eff_s: np.ndarray, use: np.ndarray,
+                        deff_dlat: np.ndarray | None = None) -> np.ndarray:
+        """(3, 3) covariance of the predicted rate change of the burning thrusters from the
+        uncertainty of their thrust scales and, when the latency is learnt and ``deff_dlat``
+        given, of the command latency: ``A P A^T``, ``A`` the columns ``mu_j eff_j`` of the
+        burning, usable thrusters (and ``sum_j mu_j k_j deff_dlat_j``)."""
+        use = np.asarray(use, dtype=bool)
+        e = np.where(use, np.asarray(eff_s, dtype=float), 0.0)
+        cols = list(np.flatnonzero(e != 0.0))
+        A = [self.mu[j] * e[j] for j in cols]
+        if self.latency_bound_s > 0.0 and deff_dlat is not None:
+            cols.append(2 * self.n)
+            A.append(self.mu.T @ (self.k * np.where(use, np.asarray(deff_dlat, float), 0.0)))
+        if not cols:
+            return np.zeros((3, 3))
+        A = np.array(A).T
+        return A @ self.P[np.ix_(cols, cols)] @ A.T
+
     def trust(self) -> None:
         self._trusted = (self.x.copy(), self.P.copy())
 
@@ -383,6 +401,18 @@ class Detector:
         dw = np.asarray(dw_B_rad_s, dtype=float)
         if not np.any(dw):
             return True
+        return float(dw @ np.linalg.solve(S, dw)) < 1.0
+
+    def in_learnt_ellipsoid(self, dw_B_rad_s: np.ndarray, thrust_cov: np.ndarray) -> bool:
+        """Dead zone from the learning (``relative_dead_zone_sigma`` = kappa): inside when
+        ``dw^T (dz^2 I + kappa^2 C)^-1 dw < 1``, ``C`` (3, 3) the covariance of the burning
+        thrusters' predicted rate change (``Effectiveness.rate_change_cov``)."""
+        cfg = self.cfg
+        dw = np.asarray(dw_B_rad_s, dtype=float)
+        if not np.any(dw):
+            return True
+        S = cfg.dead_zone_rad_s**2 * np.eye(3) + \
+            float(cfg.relative_dead_zone_sigma) ** 2 * np.asarray(thrust_cov, dtype=float)
         return float(dw @ np.linalg.solve(S, dw)) < 1.0
 
     def project(self, dw_B_rad_s: np.ndarray, commanded_abs_rad_s: float = 0.0,

@@ -109,6 +109,15 @@ class BurnTimeline:
         self._burns: list[list[list[float]]] = [[] for _ in range(self.n)]
         self._lit = np.zeros(self.n, dtype=bool)  # valve open at the end of the last command
 
+    def carried_burn(self, t0_s: float, t1_s: float) -> np.ndarray:
+        """(N,) equivalent burn, s, of the commands already given that falls in
+        ``[t0_s, t1_s]`` of the current tick (times from its start)."""
+        out = np.zeros(self.n)
+        for j, burns in enumerate(self._burns):
+            for a, b in burns:
+                out[j] += max(0.0, min(b, t1_s) - max(a, t0_s))
+        return out
+
     def advance(self, tau_cmd_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h, lat = self.h, self.latency_s
         tau = np.clip(np.asarray(tau_cmd_s, dtype=float), 0.0, h)

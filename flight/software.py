@@ -30,7 +30,7 @@ import numpy as np
 from common.scenario import AttitudeCfg
 from common.vehicle import VehicleArrays, VehicleCfg
 from flight.allocator import Allocation, Allocator
-from flight.attitude import AttitudeEstimate, q_rotate_inv
+from flight.attitude import AttitudeEstimate, propagate, q_rotate_inv
 from flight.controller import Controller, RateDemand
 from flight.detector import (
     DEGRADED,
@@ -123,8 +123,15 @@ class FlightSoftware:
     STAGES = ("observer", "detector", "controller", "allocator", "output")
 
     def __init__(self, vehicle: VehicleCfg, target: AttitudeCfg | np.ndarray | None = None,
-                 initial_attitude: AttitudeCfg | np.ndarray | None = None) -> None:
+                 initial_attitude: AttitudeCfg | np.ndarray | None = None,
+                 lead_s: float = 0.0) -> None:
         self.vehicle = vehicle
+        # The controller acts on the state predicted this far ahead: the actuation phase, when
+        # commands take effect that long after their sample (the onboard model's latency
+        # includes it). 0: on the estimate at the sample.
+        if not 0.0 <= lead_s < float(vehicle.timing.tick_s):
+            raise ValueError(f"lead_s: expected 0 <= s < the tick, got {lead_s}")
+        self.lead_s = float(lead_s)
         fc = vehicle.flight
         self.arrays = VehicleArrays.from_vehicle(vehicle)
         self.h = float(vehicle.timing.tick_s)
@@ -302,7 +309,10 @@ class FlightSoftware:
         error before the observer's correction: the adaptive observer's residual is only W5 of
         it on switching ticks) to the effectiveness learning."""
         inside = None
-        if self.detector.cfg.relative_dead_zone_across is not None and pred.eff_s is not None:
+        if self.detector.cfg.relative_dead_zone_sigma is not None and pred.eff_s is not None:
+            inside = self.detector.in_learnt_ellipsoid(
+                dw, self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat))
+        elif self.detector.cfg.relative_dead_zone_across is not None and pred.eff_s is not None:
             m = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) * np.abs(
                 self.effectiveness.k * pred.eff_s)
             inside = self.detector.in_ellipsoid(dw, m)
@@ -427,9 +437,26 @@ class FlightSoftware:
             self.kalman.reset(self._phi_meas, self._obs.omega_hat_B_rad_s)
 
     def stage_controller(self) -> None:
-        """Seed 004 phase plane (or seed 002 s-law) on the estimated attitude and rigid rate."""
-        self._demand: RateDemand = self.controller.demand(
-            self.attitude.Lambda_BO, self._obs.omega_hat_B_rad_s, self.target_TO)
+        """Seed 004 phase plane (or seed 002 s-law) on the estimated attitude and rigid rate,
+        predicted ``lead_s`` ahead (``_lead_state``)."""
+        lam, w = self._lead_state()
+        self._demand: RateDemand = self.controller.demand(lam, w, self.target_TO)
+
+    def _lead_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Attitude and rigid rate when this tick's command takes effect, ``lead_s`` after
+        the nominal: the rate changed by what the commands already given still burn until
+        then (the onboard model's burn timeline, learnt effectiveness) and by the free
+        dynamics; the attitude turned by the mean rate. Without a lead, the estimate."""
+        lam, w = self.attitude.Lambda_BO, self._obs.omega_hat_B_rad_s
+        if self.lead_s <= 0.0:
+            return lam, w
+        tl = self.model.timeline
+        burn = tl.carried_burn(tl.latency_s - self.lead_s, tl.latency_s)
+        dw = self.arrays.mu_B_rad_s2.T @ (self.effectiveness.k * burn) \
+            + self._free * (self.lead_s / self.h)
+        w_lead = w + dw
+        lam_lead = propagate(lam, w + 0.5 * dw, self.lead_s, self.attitude.w0_rad_s)
+        return lam_lead, w_lead
 
     def stage_allocator(self) -> None:
         """LP allocation over the available thrusters, quantisation, prediction."""

@@ -71,10 +71,12 @@ class FlightShell:
         from flight.software import FlightSoftware
 
         self.sc, self.port, self.settings = sc, port, settings
-        self.v = with_actuation_phase(sc.vehicle, settings.actuation_phase_s())
+        phase = settings.actuation_phase_s()
+        self.v = with_actuation_phase(sc.vehicle, phase)
         self.h = self.v.timing.tick_s
+        # The controller acts on the state at actuation (the phase ahead of the sample).
         self.fs = FlightSoftware(self.v, target=sc.cfg.target,
-                                 initial_attitude=sc.cfg.initial.attitude)
+                                 initial_attitude=sc.cfg.initial.attitude, lead_s=phase)
         self.names = self.fs.arrays.names
         self.rec = JsonlWriter(out / "flight.jsonl")
         self.events: list[str] = []
@@ -96,6 +98,7 @@ class FlightShell:
         self.bus_new: list[dict] = []  # bus faults newly active, for the next record
         self.last_bus_fault_cmd: FaultCmd | None = None
         self.no_evidence = 0  # ticks kept out of the detector's evidence (docs/hostile-bus.md)
+        self.no_evidence_after_skip = 0  # real time: ticks still to keep out after a skip
         self.first = first_record(sc, settings, {"gyro_lost_ticks": self.safety.gyro_lost_ticks})
         self.events.extend(self.first.pop("events"))
         if settings.mode == "realtime":
@@ -143,6 +146,11 @@ class FlightShell:
         # The plant says in the sample whether it applied our last command; a tick without a
         # fresh sample propagates; neither kind of tick is evidence about the thrusters.
         applied = self.gyro is None or not self.gyro.status & GyroStatus.CMD_NOT_APPLIED
+        if self.no_evidence_after_skip > 0:
+            # A release was skipped (an overrun): the residual now spans more than the tick
+            # the model predicted, and the plant held our last command in between.
+            self.no_evidence_after_skip -= 1
+            applied = False
         if not (fresh and applied):
             self.no_evidence += 1
         stage_ns = {}
@@ -370,6 +378,8 @@ class FlightShell:
         def on_tick(r: TickRecord) -> None:
             if r.overrun:
                 self.overruns += 1
+                if r.skipped:
+                    self.no_evidence_after_skip = 2
                 self.events.append(f"overrun: tick {r.tick} busy {r.busy_ns / 1e6:.2f} ms, "
                                    f"{r.skipped} release(s) skipped")
 

@@ -132,7 +132,9 @@ def node_config(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
             "thrusters": [t.name for t in sc.vehicle.thrusters], "mode": settings.mode,
             "bus": f"{settings.interface} {settings.channel}", "safety": safety,
             # THR_CMD and FAULT_CMD authenticated (bus.secoc): only with --key-file
-            "secoc": settings.key_file is not None}
+            "secoc": settings.key_file is not None,
+            # THR_CMD(n) takes effect this long after tick n's sample (0: on arrival)
+            "actuation_phase_ms": round(1000.0 * settings.actuation_phase_s(), 3)}
 
 
 def first_record(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:

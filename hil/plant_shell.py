@@ -81,9 +81,9 @@ class PlantShell:
         # Whether the flight's last command was applied as sent; the next GYRO says so
         # (GyroStatus.CMD_NOT_APPLIED) and the flight keeps that tick out of its evidence.
         self.cmd_applied = True
-        # Real time, time-triggered: whether the last command came before its actuation time
-        # (a late one is applied on arrival, and the next GYRO says CMD_NOT_APPLIED too).
-        self.cmd_on_time = True
+        # Real time, time-triggered: a command that came after its actuation time is applied on
+        # arrival, and the GYRO samples until this time say CMD_NOT_APPLIED.
+        self.late_until_s = -math.inf
         self.late_actuations = 0
         self.last_applied: ThrCmd | None = None
         self.applied_as_sent: list[list[int]] = []  # [tick, on ms] since the last record
@@ -351,8 +351,12 @@ class PlantShell:
         Actuation is time-triggered: THR_CMD(n) takes effect the actuation phase
         (``NodeSettings.actuation_phase_s``) after its sample went out, as the flight's onboard
         model assumes, whatever the flight's compute and the bus took; one received later is
-        applied at its kernel receive time, counted (``late_actuations``) and the next GYRO
-        says CMD_NOT_APPLIED, so that tick is not FDIR evidence. Phase 0: every command is
+        applied at its kernel receive time, counted (``late_actuations``) and the next two GYRO
+        samples say CMD_NOT_APPLIED (its burn and the tail it spills past the next sample are
+        not where the flight's model put them), so those ticks are not FDIR evidence: taken as
+        evidence, a few late ticks taught the effectiveness learning "every thruster 4 %
+        strong and 4 % leaking", which the model's prediction (strong, leaks not fed back)
+        then kept wrong for the rest of the run (``kalman_cube``, S002-15). Phase 0: every command is
         applied at its receive time. It also wakes ``REALTIME_PRE_WAKE_S``
         before each sample and integrates up to there, so that when the sample is due only a
         few milliseconds remain to integrate before it goes out (this replaces a 2 ms
@@ -383,7 +387,7 @@ class PlantShell:
             self.plant.advance_to(now)
             self.bus_new += bus_fault_fields(self, now)
             # A command applied within the last tick (and its deadline) is the one in force.
-            self.cmd_applied = not self.safe and self.cmd_on_time and \
+            self.cmd_applied = not self.safe and now >= self.late_until_s and \
                 now - self.last_cmd_tick_s <= self.h + THR_CMD_DEADLINE_S
             if not self.cmd_applied and not self.safe and self.last_applied is not None and \
                     self.safety.thr_cmd_missing == "hold" and \
@@ -391,6 +395,8 @@ class PlantShell:
                     now - self.last_cmd_tick_s >= self.h + THR_CMD_DEADLINE_S:
                 held = self.missing_command(self.last_applied.tick + 1, self.last_applied)
                 self.apply(held, now + cmd_latency, as_sent=False)
+                # The flight's model has no such burn: the next two samples are no evidence.
+                self.late_until_s = now + cmd_latency + 2.0 * self.h
             # Publish first: the flight is waiting for this sample.
             ready = self.plant.gyro_samples_until(now)
             if ready:
@@ -439,8 +445,11 @@ class PlantShell:
                     if not self.safe:
                         self.apply(msg, t_apply)
                         self.held_ticks = 0
-                        self.cmd_on_time = not late
-                        self.late_actuations += late
+                        if late:
+                            # Its burn, and the tail it spills past the next sample, are not
+                            # where the flight's model put them: the next two samples say so.
+                            self.late_until_s = t_apply + 2.0 * self.h
+                            self.late_actuations += 1
                     if t_meas is not None:
                         s2a.append(t_apply - t_meas)
                         link = {"tick": msg.tick, "gyro_seq": msg.gyro_seq,

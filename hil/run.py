@@ -389,6 +389,12 @@ def _stop_lcm_logger(p: subprocess.Popen, url: str, path: Path) -> None:
             p.wait()
 
 
+def _phase_argv(args) -> list[str]:
+    """``--actuation-phase-ms`` for a re-run of the command (user-mode Linux, a namespace)."""
+    ms = getattr(args, "actuation_phase_ms", None)
+    return [] if ms is None else ["--actuation-phase-ms", repr(ms)]
+
+
 def _node_cmd(node: str, scenario: Path, out: Path, args,
               start_after: Path | None = None) -> list[str]:
     cmd = [sys.executable, "-m", "hil.nodes", node, "--scenario", str(scenario),
@@ -400,9 +406,7 @@ def _node_cmd(node: str, scenario: Path, out: Path, args,
         cmd += ["--telemetry-url", args.telemetry]
     if getattr(args, "rt_priority", False):
         cmd.append("--rt-priority")
-    if getattr(args, "actuation_phase_ms", None) is not None:
-        cmd += ["--actuation-phase-ms", repr(args.actuation_phase_ms)]
-    return cmd
+    return cmd + _phase_argv(args)
 
 
 # A node's start (imports, the cores' set-up, the bus) inside user-mode Linux on a loaded
@@ -738,6 +742,7 @@ def _cmd_run(args) -> int:
         argv += ["--kill-flight-at", str(args.kill_flight_at)]
     if args.rt_priority:
         argv.append("--rt")
+    argv += _phase_argv(args)
     argv += _lcm_argv(args)
     rc = maybe_in_netns(args, argv)
     if rc is None:
@@ -775,6 +780,7 @@ def _cmd_up(args) -> int:
             "--interface", args.interface, "--channel", args.channel]
     if args.rt_priority:
         argv.append("--rt")
+    argv += _phase_argv(args)
     argv += _lcm_argv(args)
     if getattr(args, "console", False):
         return _up_with_console(argv + ["--duration", str(args.duration)], out)

@@ -19,7 +19,7 @@ import pytest
 
 from hil.config import SCENARIO_DIR, load_scenario
 from hil.flight_shell import FlightShell, with_actuation_phase
-from hil.node_settings import build_parser, parse_settings
+from hil.node_settings import REALTIME_ACTUATION_PHASE_MS, build_parser, parse_settings
 from hil.node_shell import open_port
 from hil.plant_shell import PlantShell
 from hil.recorder import read_jsonl
@@ -104,7 +104,7 @@ def test_default_phase_by_mode() -> None:
     base = ["plant", "--scenario", "s", "--out", "o"]
     assert parse_settings(base).actuation_phase_s() == 0.0
     assert parse_settings(base + ["--mode", "realtime"]).actuation_phase_s() == \
-        pytest.approx(0.06)
+        pytest.approx(REALTIME_ACTUATION_PHASE_MS / 1000.0)
     assert parse_settings(base + ["--mode", "realtime", "--actuation-phase-ms", "0"]) \
         .actuation_phase_s() == 0.0
     assert np.isclose(parse_settings(base + ["--actuation-phase-ms", "25"])
