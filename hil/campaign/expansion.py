@@ -161,13 +161,18 @@ def expand_run(c: Campaign, k: int) -> RunSpec:
             frac = frac.get(kind)
         if frac is not None:
             fault["fraction"] = _r(draw("fault.fraction", frac))
-        if "clear_after_s" in fd:
-            fault["clear_t_s"] = _r(fault["t_s"] + draw("fault.clear_after_s",
-                                                        fd["clear_after_s"]))
-        for key in ("axis", "magnitude_rad_s"):
-            if key in fd:
-                v = draw(f"fault.{key}", fd[key])
-                fault[key] = int(v) if key == "axis" else _r(v)
+        clear = fd.get("clear_after_s")
+        if isinstance(clear, dict):
+            clear = clear.get(kind)
+        if clear is not None:
+            fault["clear_t_s"] = _r(fault["t_s"] + draw("fault.clear_after_s", clear))
+        if "axis" in fd:
+            fault["axis"] = int(draw("fault.axis", fd["axis"]))
+        mag = fd.get("magnitude_rad_s")
+        if isinstance(mag, dict):
+            mag = mag.get(kind)
+        if mag is not None:
+            fault["magnitude_rad_s"] = _r(draw("fault.magnitude_rad_s", mag))
         faults.append(fault)
         params.update({f"fault_{key}": v for key, v in fault.items()})
 

@@ -87,9 +87,10 @@ class BaseSpec(_M):
 
 
 class FaultSpecDist(_M):
-    """One fault per run; each field a distribution. ``fraction`` may be one distribution or a
-    mapping fault kind -> distribution (drawn only for that kind); ``thruster: none`` for faults
-    without a thruster; ``clear_after_s`` clears the fault that long after ``t_s``."""
+    """One fault per run; each field a distribution. ``fraction``, ``magnitude_rad_s`` and
+    ``clear_after_s`` may each be one distribution or a mapping fault kind -> distribution
+    (drawn only for that kind); ``thruster: none`` for faults without a thruster;
+    ``clear_after_s`` clears the fault that long after ``t_s``."""
 
     kind: Any
     thruster: Any = "any"
@@ -302,7 +303,10 @@ def parse_campaign(path: str | Path) -> Campaign:
                               ("magnitude_rad_s", "number")):
                 raw = getattr(f, key)
                 if raw is not None:
-                    fault[key] = parse_dist(raw, f"fault.{key}", kind)
+                    # one distribution, or fault kind -> distribution (gyro faults: a spike,
+                    # a bias step and a noise level have magnitudes of their own)
+                    fault[key] = (parse_dist(raw, f"fault.{key}", kind) if key == "axis"
+                                  else _per_kind(raw, f"fault.{key}", kind, fault["kind"]))
     except DistError as exc:
         raise CampaignError(where, exc.field, exc.expected, exc.found) from None
     if base_scenario is None and duration is None:
@@ -322,7 +326,7 @@ def parse_campaign(path: str | Path) -> Campaign:
 
 
 def _per_kind(raw: Any, where: str, kind: str, kinds: Dist) -> Any:
-    """``fraction`` as one distribution, or a mapping fault kind -> distribution."""
+    """A fault field as one distribution, or a mapping fault kind -> distribution."""
     from hil.campaign.dispersions import DIST_KEYS
 
     if isinstance(raw, dict) and raw and not (set(raw) & set(DIST_KEYS)):

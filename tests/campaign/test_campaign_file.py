@@ -169,3 +169,48 @@ def test_base_scenario(write_campaign, tmp_path: Path) -> None:
             "flex_freq_scale"], strict=True):
         assert m.freq_hz == pytest.approx(m0.freq_hz * k, rel=1e-10)
         assert 0.9 <= k <= 1.1
+
+
+GYRO = """name: g
+base: {vehicle: generic}
+runs: 40
+seed: 3
+duration_s: 20.0
+fault:
+  kind: {cycle: [gyro_spike, gyro_bias_step, gyro_frozen, gyro_noise]}
+  thruster: none
+  axis: {choice: [0, 1, 2]}
+  t_s: {uniform: [2.0, 10.0]}
+  magnitude_rad_s:
+    gyro_spike: {uniform: [2.0e-3, 2.0e-2]}
+    gyro_bias_step: {uniform: [2.0e-4, 1.0e-3]}
+    gyro_noise: {fixed: 5.0e-5}
+  clear_after_s: {gyro_frozen: {uniform: [2.0, 4.0]}}
+"""
+
+
+def test_magnitude_and_clear_time_per_fault_kind(tmp_path, write_campaign) -> None:
+    """``magnitude_rad_s`` and ``clear_after_s`` as mappings fault kind -> distribution: each
+    kind draws from its own, a kind without one gets none (the expanded scenario loads)."""
+    c = load_campaign(write_campaign(tmp_path, GYRO))
+    lim = {"gyro_spike": (2e-3, 2e-2), "gyro_bias_step": (2e-4, 1e-3),
+           "gyro_noise": (5e-5, 5e-5)}
+    seen = set()
+    for k in range(12):
+        f = expand_run(c, k).fault
+        seen.add(f["kind"])
+        if f["kind"] in lim:
+            lo, hi = lim[f["kind"]]
+            assert lo <= f["magnitude_rad_s"] <= hi, f
+            assert "clear_t_s" not in f, f
+        else:
+            assert "magnitude_rad_s" not in f and 2.0 <= f["clear_t_s"] - f["t_s"] <= 4.0, f
+        assert f["axis"] in (0, 1, 2)
+    assert seen == {"gyro_spike", "gyro_bias_step", "gyro_frozen", "gyro_noise"}
+    (tmp_path / "runs").mkdir()
+    path = write_run(expand_run(c, 2), tmp_path / "runs")
+    assert load_scenario(path).cfg.faults[0].kind == "gyro_frozen"
+    with pytest.raises(CampaignError, match="fault.magnitude_rad_s.gyro_spik: expected a fault "
+                                            "kind of fault.kind"):
+        load_campaign(write_campaign(tmp_path, GYRO.replace("gyro_spike: {uniform",
+                                                            "gyro_spik: {uniform"), "bad.yaml"))
