@@ -99,6 +99,9 @@ class FlightShell:
         self.last_bus_fault_cmd: FaultCmd | None = None
         self.no_evidence = 0  # ticks kept out of the detector's evidence (docs/hostile-bus.md)
         self.no_evidence_after_skip = 0  # real time: ticks still to keep out after a skip
+        # Real time: the plant's time of tick 0's sample (the flight's grid starts on the
+        # samples it observed first, so its tick n is not the plant's tick n); lockstep: 0.
+        self.t0_plant_s = 0.0
         self.first = first_record(sc, settings, {"gyro_lost_ticks": self.safety.gyro_lost_ticks})
         self.events.extend(self.first.pop("events"))
         if settings.mode == "realtime":
@@ -127,7 +130,7 @@ class FlightShell:
         """
         fs, clk = self.fs, time.perf_counter_ns
         t_start = clk()
-        self.bus_new += bus_fault_fields(self, n * self.h)
+        self.bus_new += bus_fault_fields(self, self.t_of(n))
         fresh = self.gyro is not None and self.gyro_fresh
         change = self.gyro_watch.tick(fresh)
         if change == "lost":
@@ -178,7 +181,7 @@ class FlightShell:
             thr = detection["thruster"]
             self.events.append(f"detection: {det.kind} of "
                                f"{thr if isinstance(thr, str) else 'one of ' + str(thr)} "
-                               f"at {n * self.h:.1f} s ({det.source})")
+                               f"at {self.t_of(n):.1f} s ({det.source})")
             say("flight", self.events[-1])
         t1 = clk()
         stage_ns["thr_cmd_out"] = t1 - t0
@@ -187,7 +190,7 @@ class FlightShell:
             self.last_det = det
         view = fdir_view(out, self.names, self.v.manifolds,
                          [t.manifold for t in self.v.thrusters])
-        self.fdir_actions = fdir_actions(self.fdir_before, view, round(n * self.h, 6))
+        self.fdir_actions = fdir_actions(self.fdir_before, view, round(self.t_of(n), 6))
         self.fdir_before = self.fdir_view = view
         for a in self.fdir_actions:
             self.events.append(fdir_action_text(a))
@@ -207,10 +210,17 @@ class FlightShell:
             return self.lock.reply(n, quanta, mask, seq)
         return ThrCmd(n, quanta, mask, seq)  # real time: no lockstep state to keep
 
+    def t_of(self, n: int) -> float:
+        """Tick ``n``'s time on the plant's clock (when its sample was measured), the time base of
+        faults, detections and the plant's records. Before, a real-time flight wrote ``n h``,
+        its own count from the samples it aligned on, some 0.4-0.6 s behind the plant, so a
+        detection 0.4 s after a fault was judged a false alarm before it."""
+        return self.t0_plant_s + n * self.h
+
     def record(self, n, out, detection, stage_ns, compute_s, jitter_s, rt=None) -> None:
         thr_off = out.threshold_off
         rec: FlightRecord = {
-            "tick": n, "t_s": round(n * self.h, 6),
+            "tick": n, "t_s": round(self.t_of(n), 6),
             "series": {
                 "flight/omega_meas_deg_s": xyz_values(out.omega_meas, DEG),
                 "flight/omega_est_deg_s": xyz_values(out.omega_est, DEG),
@@ -344,6 +354,8 @@ class FlightShell:
         if not grid.per_tick:
             self.events.append(f"gyro at {self.v.gyro.rate_hz:g} Hz is not a whole number of "
                                f"samples per tick: ticks use the newest sample, no wait")
+        else:  # sample k is measured at k / rate on the plant's clock (lockstep: tick n's
+            self.t0_plant_s = grid.seq_first / self.v.gyro.rate_hz  # is measured at n h)
         wait_ns = int(round(a.gyro_wait_ms * 1e6))
         hb = HeartbeatSender(NodeId.FLIGHT, 0.0)
         cpu0 = time.process_time()
