@@ -356,8 +356,8 @@ class PlantShell:
         not where the flight's model put them), so those ticks are not FDIR evidence: taken as
         evidence, a few late ticks taught the effectiveness learning "every thruster 4 %
         strong and 4 % leaking", which the model's prediction (strong, leaks not fed back)
-        then kept wrong for the rest of the run (``kalman_cube``, S002-15). Phase 0: every command is
-        applied at its receive time. It also wakes ``REALTIME_PRE_WAKE_S``
+        then kept wrong for the rest of the run (``kalman_cube``, S002-15). Phase 0: every
+        command is applied at its receive time. It also wakes ``REALTIME_PRE_WAKE_S``
         before each sample and integrates up to there, so that when the sample is due only a
         few milliseconds remain to integrate before it goes out (this replaces a 2 ms
         polling loop that kept busy the one CPU the flight also needs under user-mode Linux).

@@ -108,7 +108,8 @@ def timing_summary(plant_records: list[PlantRecord], flight_records: list[Flight
         return {}
     f = realtime_figures(plant_records, flight_records, tick_s, warmup_ticks=0)
     keep = ("release_jitter_ms", "gyro_wait_ms", "late_gyro", "stage_ms", "tick_share",
-            "s2a_ms", "cmd_arrival_ms", "late_actuations", "gyro_publish_ms", "flight_turnaround_ms")
+            "s2a_ms", "cmd_arrival_ms", "late_actuations", "gyro_publish_ms",
+            "flight_turnaround_ms")
     return {k: f[k] for k in keep}
 
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from flight.detector import Detector, Effectiveness
-from hil.config import DetectorCfg, FaultSpec, InitialCfg, AttitudeCfg
-from tests.flight.test_fdir_envelope import H, MU, _run, _synthetic
+from hil.config import AttitudeCfg, DetectorCfg, FaultSpec, InitialCfg
+from tests.flight.test_fdir_envelope import MU, H, _run, _synthetic
 
 KAPPA = 2.0
 DZ = 1e-4
