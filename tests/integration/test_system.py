@@ -154,7 +154,7 @@ def test_realtime_60_s_no_overrun_with_jitter_and_compute(tmp_path) -> None:
 
     g_s = load_scenario(scen).vehicle.gyro.latency_ms / 1e3
     links = [c for x in _jsonl(out / "plant.jsonl") for c in x.get("chain", [])]
-    assert len(links) >= 290
+    assert len(links) >= 250  # 300 ticks, less the grid alignment and the last ones
     late = [c for c in links if c.get("late")]
     for c in links:
         if c.get("late"):
