@@ -16,9 +16,9 @@ from typing import Literal
 from bus.catalog import CATALOG, HEARTBEAT_PERIOD_S
 
 # Real time: THR_CMD(n) takes effect this long after its tick's gyro sample went out
-# (time-triggered actuation, docs/design.md section 3); lockstep idealises the flight's
-# compute as zero.
-REALTIME_ACTUATION_PHASE_MS = 30.0
+# (time-triggered actuation, docs/design.md section 3; 0: on arrival). Opt-in
+# (--actuation-phase-ms 30): with 30 ms, a real-time fails-to-fire over LCM was named degraded.
+REALTIME_ACTUATION_PHASE_MS = 0.0
 # A phase must leave the command inside its frame's deadline (half a tick).
 ACTUATION_PHASE_MAX_MS = 1000.0 * CATALOG.frame("THR_CMD_0").deadline_s
 

@@ -123,6 +123,9 @@ def test_killing_the_flight_puts_the_plant_safe(tmp_path) -> None:
     assert _rrd_rows(rrd, "/truth/omega_deg_s") >= len(plant)
 
 
+PHASE_MS = 30.0
+
+
 def test_realtime_60_s_no_overrun_with_jitter_and_compute(tmp_path) -> None:
     """Issue 5: real time over vcan for 60 s, no overrun on an idle machine (a 200 ms tick
     with a few ms of compute), compute and jitter figures in the summary."""
@@ -130,7 +133,8 @@ def test_realtime_60_s_no_overrun_with_jitter_and_compute(tmp_path) -> None:
     scen.write_text("name: rt60\nvehicle: generic\nduration_s: 60.0\nseed: 1\n"
                     "initial: {attitude: {axis: [1.0, 0.5, 0.2], angle_deg: 3.0}}\n")
     out = tmp_path / "rt"
-    r = _run(["run", str(scen), "--mode", "realtime", "--out", str(out)])
+    r = _run(["run", str(scen), "--mode", "realtime", "--out", str(out),
+              "--actuation-phase-ms", str(PHASE_MS)])
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     s = _summary(out)
     assert s["mode"] == "realtime" and s["flight_ticks"] >= 290, s["flight_ticks"]
@@ -147,10 +151,9 @@ def test_realtime_60_s_no_overrun_with_jitter_and_compute(tmp_path) -> None:
     assert len(t["stage_ms"]) >= 6, list(t["stage_ms"])  # every flight stage is timed
     for name, d in t["stage_ms"].items():
         _figures(d, f"timing.stage_ms.{name}")
-    # Time-triggered actuation (the default phase of real time): a command in time takes effect
-    # exactly the phase after its sample went out, a late one on arrival, and is counted.
+    # Time-triggered actuation (--actuation-phase-ms): a command in time takes effect exactly
+    # the phase after its sample went out, a late one on arrival, and is counted.
     from hil.config import load_scenario
-    from hil.node_settings import REALTIME_ACTUATION_PHASE_MS
 
     g_s = load_scenario(scen).vehicle.gyro.latency_ms / 1e3
     links = [c for x in _jsonl(out / "plant.jsonl") for c in x.get("chain", [])]
@@ -159,10 +162,10 @@ def test_realtime_60_s_no_overrun_with_jitter_and_compute(tmp_path) -> None:
     for c in links:
         if c.get("late"):
             assert c["applied_s"] == pytest.approx(c["received_s"], abs=0.011), c
-            assert c["applied_s"] > c["sample_s"] + g_s + REALTIME_ACTUATION_PHASE_MS / 1e3
+            assert c["applied_s"] > c["sample_s"] + g_s + PHASE_MS / 1e3
         else:
             assert c["applied_s"] - c["sample_s"] == pytest.approx(
-                g_s + REALTIME_ACTUATION_PHASE_MS / 1e3, abs=2e-6), c
+                g_s + PHASE_MS / 1e3, abs=2e-6), c
             assert c["received_s"] <= c["applied_s"] + 1e-6, c
     assert t["late_actuations"] == len(late)
 
