@@ -14,18 +14,32 @@ signatures no single thruster fault can produce are recognised:
   output; an integrating gyro whose counter stopped gives exact zeros). With sensor noise of
   ``noise_std`` over the bus's 1e-7 rad/s quantum, two repeats in a row on all three axes do
   not happen on a live sensor;
-* **spike**: a jump ``r(n)`` larger than ``jump_rad_s`` that the thrusters burning in the tick
-  cannot explain (``|r| > jump_rad_s + explain_factor * sum_j |mu_j| eff_j``), followed by the
-  opposite jump (``|r(n) + r(n+1)| < return_fraction |r(n)|``): one bad sample;
+* **spike**: a jump ``r(n)`` the thrusters of the tick cannot explain, followed by the
+  opposite jump: ``|r(n) + r(n+1)| < return_fraction |r(n)|`` (one bad sample of a rate gyro),
+  or ``r(n+1) = -2 r(n)`` within the same fraction (one bad reading of an integrating gyro's
+  counter: the mean rates of the two intervals around it are off by ``+s`` and ``-s``; the
+  third tick, ``+s`` again, is kept out too). No thruster fault turns its residual around: a
+  stuck-on thruster adds along its direction on every tick, one that fails to fire removes
+  along it on every tick it is commanded;
 * **bias step**: the same unexplained jump followed by nothing (``|r(n+1)| < return_fraction
   |r(n)|``): the output moved, the dynamics did not. A stuck-on thruster repeats its jump tick
   after tick, so it is never a step;
-* **noise increase**: the mean square of the change of ``r`` between consecutive quiet ticks
-  (no thrust inside either; a steady residual such as a stuck thruster's cancels),
-  forgotten with ``fast_forget``, exceeds ``noise_ratio`` times its long-run level (forgotten
-  with ``slow_forget``, each sample capped at ``_SLOW_CAP`` times the level, frozen while the
-  gyro is suspect) and the floor ``noise_floor_rad_s``
-  for ``noise_ticks`` ticks in a row.
+* "unexplained": with the thrusters' increments of the tick ``u_j = mu_j k_j eff_j`` given,
+  the residual is larger than ``jump_rad_s`` plus what the envelope's thrust errors can put
+  along it (``sum_j 0.4 |u_j . r/|r|| + 0.1 |u_j|``: scale and timing along, direction
+  across) even after taking out up to the whole increment
+  of any one of them (``r + c u_j``, ``0 <= c <= 1``: that thruster failed to fire or is
+  weak), so a fails-to-fire is never taken for a step. Without the increments, larger than
+  ``jump_rad_s + explain_factor * sum_j |u_j|``. A jump right after a jump is dynamics going on
+  (a stuck-on thruster) and is not held;
+* **noise increase**: per axis, the differences of ``r`` between consecutive quiet ticks (no
+  thrust inside either; a steady residual such as a stuck thruster's cancels) against the
+  axis's long-run level (forgotten with ``slow_forget``, each sample capped at ``_SLOW_CAP``
+  times the level, frozen while the gyro is suspect or the axis's window holds three large
+  differences, never under the floor from
+  ``noise_floor_rad_s``): at least 10 of the last 20 above 5 times the level, for
+  ``noise_ticks`` quiet ticks in a row. One step (a thruster starting, a torque) is one large
+  difference (three: a second difference), not ten. The rates are with the constants.
 
 While a jump waits for its next tick, and while the output is frozen or noisy, the gyro is
 *suspect*: the flight does not feed the tick to the thruster detector nor to the effectiveness
@@ -43,9 +57,21 @@ import numpy as np
 
 SPIKE, BIAS_STEP, FROZEN, NOISE = "spike", "bias_step", "frozen", "noise"
 # A quiet tick's square residual enters the long-run noise level capped at this many times it.
-_SLOW_CAP = 4.0
-# Of the last _BIG_WINDOW quiet differences, at least _BIG_COUNT above _BIG_RATIO times the level.
-_BIG_WINDOW, _BIG_COUNT, _BIG_RATIO = 6, 4, 9.0
+_SLOW_CAP = 9.0
+# Per axis, of the last _BIG_WINDOW quiet differences at least _BIG_COUNT above _BIG_RATIO times
+# the axis's level (a robust order statistic: one step, a thruster starting or a torque, is one
+# large difference; noise is many), for noise_ticks ticks in a row. Consecutive differences of
+# a second difference are correlated (-2/3), so the binomial does not give the rate: simulated
+# on 2e7 ticks of white noise at the level, 5e-8 alarms per tick and axis; with the noise three
+# times up, named after 27 quiet ticks (median; 99 % within 100), five times up, 16.
+_BIG_WINDOW, _BIG_COUNT, _BIG_RATIO = 20, 10, 5.0
+# An axis with this many of its window above keeps its level (white noise at the level: 1 %
+# of the ticks).
+_FREEZE_COUNT = 3
+# Share of each thruster's increment a healthy tick's residual may reach beyond what the learnt
+# effectiveness explains: along the residual (thrust scale 0.85-1.15 twice over and timing) and
+# in any direction (2 deg of direction error, with margin).
+_ALONG, _ACROSS = 0.4, 0.1
 
 
 @dataclass(frozen=True)
@@ -53,7 +79,9 @@ class GyroVerdict:
     """One tick of the check. ``suspect``: keep this tick out of the thruster evidence;
     ``drop_previous``: the previous tick (held back as a possible jump) was a gyro error too;
     ``resync``: the output moved without the dynamics (re-synchronise estimators on it);
-    ``fault``: newly recognised fault kind (first one only) or None; ``residual`` r (3,)."""
+    ``fault``: newly recognised fault kind (first one only) or None; ``residual`` r (3,);
+    ``taint_previous``: the previous tick, already evidence, was a sensor error: the thruster
+    evidence restarts."""
 
     suspect: bool
     hold: bool
@@ -61,28 +89,29 @@ class GyroVerdict:
     resync: bool
     fault: str | None
     residual: np.ndarray
+    taint_previous: bool = False
 
 
 class GyroCheck:
     """Frozen / spike / bias-step / noise tests on the raw one-tick residual (module doc).
 
-    ``step(y, predicted_change, thrust_abs)``: ``y`` (3,) this tick's sample;
+    ``step(y, predicted_change, thrust_abs, increments)``: ``y`` (3,) this tick's sample;
     ``predicted_change`` (3,) the onboard model's rate change over the last tick (free
     dynamics plus thrusters, ``d_free + u``); ``thrust_abs`` the scale of the thrusters'
-    share (``sum_j |mu_j| eff_j`` over the tick).
+    share (``sum_j |mu_j| eff_j`` over the tick); ``increments`` (N, 3) each thruster's
+    predicted rate change over the tick (``mu_j k_j eff_j``), or None.
     """
 
     def __init__(self, jump_rad_s: float, noise_floor_rad_s: float, *,
                  explain_factor: float = 1.5, return_fraction: float = 0.3,
-                 noise_ratio: float = 25.0, fast_forget: float = 0.8,
-                 slow_forget: float = 0.995, noise_ticks: int = 5, warmup_ticks: int = 20,
+                 slow_forget: float = 0.995, noise_ticks: int = 3, warmup_ticks: int = 30,
                  start_ticks: int = 2) -> None:
         self.jump_rad_s = float(jump_rad_s)
-        self.noise_floor2 = float(noise_floor_rad_s) ** 2
+        # per axis: a third of the three axes' floor (sensor noise sigma: 18 sigma^2 for the
+        # second difference of three axes)
+        self.noise_floor2 = float(noise_floor_rad_s) ** 2 / 3.0
         self.explain_factor = float(explain_factor)
         self.return_fraction = float(return_fraction)
-        self.noise_ratio = float(noise_ratio)
-        self.fast_forget = float(fast_forget)
         self.slow_forget = float(slow_forget)
         self.noise_ticks = int(noise_ticks)
         self.warmup_ticks = int(warmup_ticks)
@@ -93,11 +122,12 @@ class GyroCheck:
         self._y_prev: np.ndarray | None = None
         self._repeats = 0
         self._pending: np.ndarray | None = None
-        self._chain = False
+        self._last_fail: tuple[np.ndarray, int] | None = None
+        self._run = False
+        self._settle = False
         self._r_quiet: np.ndarray | None = None
-        self._big: list[bool] = []
-        self._fast = 0.0
-        self._slow = 0.0
+        self._big: list[np.ndarray] = []
+        self._slow = np.zeros(3)
         self._quiet = 0
         self._over = 0
 
@@ -105,13 +135,26 @@ class GyroCheck:
         """The flight changed the dynamics itself (an FDIR response): a held jump is not to be
         judged against the next tick."""
         self._pending = None
-        self._chain = False
+        self._last_fail = None
+        self._run = False
+        self._settle = False
+
+    def restart_noise(self) -> None:
+        """The flight changed the dynamics itself (an FDIR response): the quiet ticks' level
+        is learnt again, from a new warm-up (a response leaves the structure ringing, which the
+        old level would call a noisier sensor)."""
+        self._r_quiet = None
+        self._big = []
+        self._slow = np.zeros(3)
+        self._quiet = 0
+        self._over = 0
 
     def skip(self, y: np.ndarray) -> None:
         """A tick whose data is not evidence (sample missing or propagated, command not
         applied): ``y`` becomes the previous output without being judged, a held jump is
         dropped."""
         self._y_prev = np.asarray(y, dtype=float).copy()
+        self._r_quiet = None
         self.forget_pending()
 
     def _report(self, kind: str) -> str | None:
@@ -121,13 +164,48 @@ class GyroCheck:
         return kind
 
     def step(self, y: np.ndarray, predicted_change: np.ndarray,
-             thrust_abs: float) -> GyroVerdict:
-        v = self._step(y, predicted_change, thrust_abs)
+             thrust_abs: float, increments: np.ndarray | None = None) -> GyroVerdict:
+        v = self._step(y, predicted_change, thrust_abs, increments)
         self.suspect = v.suspect
         return v
 
+    def explained(self, r: np.ndarray, thrust_abs: float,
+                  increments: np.ndarray | None) -> int | None:
+        """Can the thrusters of the tick explain the residual ``r``? None: no; -1: yes, as the
+        envelope's errors; ``j``: only as thruster ``j`` failing to fire or weak.
+
+        Without ``increments``: ``|r| <= jump + explain_factor * thrust_abs`` (-1). With them:
+        the envelope's errors of the thrusters (``_slack``), else after taking out at most the
+        whole increment of one thruster of the tick (``r + c u_j``, ``0 <= c <= 1``). A
+        stuck-on thruster's first jump is not explained: the next tick tells (it repeats)."""
+        norm = float(np.linalg.norm(r))
+        if increments is None:
+            ok = norm <= self.jump_rad_s + self.explain_factor * float(thrust_abs)
+            return -1 if ok else None
+        u = np.asarray(increments, dtype=float)
+        if norm <= self._slack(r, u):
+            return -1
+        uu = np.einsum("ij,ij->i", u, u)
+        best, best_rest = None, np.inf
+        for j in np.flatnonzero(uu > 0.0):
+            c = min(max(-float(u[j] @ r) / float(uu[j]), 0.0), 1.0)
+            rest = r + c * u[j]
+            nr = float(np.linalg.norm(rest))
+            if nr <= self._slack(rest, u) and nr < best_rest:
+                best, best_rest = int(j), nr
+        return best
+
+    def _slack(self, r: np.ndarray, u: np.ndarray) -> float:
+        """What the envelope's thrust errors can put into a residual along ``r``: each thruster
+        ``_ALONG`` of its increment's share along ``r`` (scale and timing) and ``_ACROSS`` of
+        its increment (direction), on top of ``jump_rad_s``."""
+        n = float(np.linalg.norm(r))
+        along = np.abs(u @ (r / n)) if n > 0.0 else np.zeros(len(u))
+        return self.jump_rad_s + float(_ALONG * along.sum()
+                                       + _ACROSS * np.linalg.norm(u, axis=1).sum())
+
     def _step(self, y: np.ndarray, predicted_change: np.ndarray,
-              thrust_abs: float) -> GyroVerdict:
+              thrust_abs: float, increments: np.ndarray | None) -> GyroVerdict:
         y = np.asarray(y, dtype=float)
         prev = self._y_prev
         self._y_prev = y.copy()
@@ -142,36 +220,89 @@ class GyroCheck:
             self._repeats += 1
             fault = self._report(FROZEN) if self._repeats >= 2 else None
             self._pending = None
+            self._r_quiet = None
             return GyroVerdict(True, False, False, False, fault, r)
         was_frozen = self._repeats >= 2
         self._repeats = 0
-        norm = float(np.linalg.norm(r))
         if was_frozen:
             # The first live sample after a freeze jumps by whatever the rate did meanwhile.
             self._pending = None
+            self._r_quiet = None
             return GyroVerdict(True, False, False, True, None, r)
+        if self._settle:
+            # The third tick of a doublet (an integrating gyro's counter read wrong once: the
+            # mean rate is off by +s, then -s): the output is right again, resynchronise.
+            self._settle = False
+            self._r_quiet = None
+            return GyroVerdict(True, False, False, True, None, r)
+        if self._last_fail is not None:
+            v = self._after_fail(r, increments)
+            if v is not None:
+                return v
         continuation = False
         if self._pending is not None:
             p = self._pending
             pn = float(np.linalg.norm(p))
             self._pending = None
             kind = None
-            if not self._chain:
-                if float(np.linalg.norm(r + p)) < self.return_fraction * pn:
-                    kind = SPIKE
-                elif norm < self.return_fraction * pn:
-                    kind = BIAS_STEP
+            settle = False
+            # No thruster fault turns its residual around: a stuck-on thruster adds along its
+            # direction on every tick, one that fails removes on every tick commanded.
+            if float(np.linalg.norm(r + p)) < self.return_fraction * pn:
+                kind = SPIKE  # one bad sample of a rate gyro: +s, -s
+            elif float(np.linalg.norm(r + 2.0 * p)) < 2.0 * self.return_fraction * pn:
+                kind, settle = SPIKE, True  # one bad counter reading: +s, -2s, +s
+            elif float(np.linalg.norm(r)) < self.return_fraction * pn:
+                kind = BIAS_STEP
             if kind is not None:
-                return GyroVerdict(True, False, True, True, self._report(kind), r)
+                self._settle = settle
+                self._r_quiet = None
+                return GyroVerdict(True, False, True, not settle, self._report(kind), r)
             continuation = True
-        unexplained = norm > self.jump_rad_s + self.explain_factor * float(thrust_abs)
-        if unexplained:
-            # A jump that follows a jump is dynamics going on (a stuck thruster): when it
-            # stops (a response, a fault clearing) that is not a gyro step.
+        why = self.explained(r, thrust_abs, increments)
+        if why is None:
+            if continuation or self._run:
+                # A jump that follows a jump is dynamics going on (a stuck thruster): commit it
+                # now; when it stops (a response, a fault clearing) that is not a gyro step.
+                self._run = True
+                self._r_quiet = None
+                return GyroVerdict(False, False, False, False, None, r)
             self._pending = r.copy()
-            self._chain = continuation
+            self._r_quiet = None
             return GyroVerdict(True, True, False, False, None, r)
-        # Noise level on quiet ticks.
+        self._run = False
+        if why >= 0 and not continuation:
+            # Only one thruster failing to fire explains the jump: it is evidence now (no
+            # delay for a real failure), and judged again on the next tick.
+            self._last_fail = (r.copy(), why)
+            self._r_quiet = None
+            return GyroVerdict(False, False, False, False, None, r)
+        return self._noise(r, thrust_abs)
+
+    def _after_fail(self, r: np.ndarray, increments: np.ndarray | None) -> GyroVerdict | None:
+        """The tick after a jump only one thruster's failure explained (already evidence):
+        the opposite jump is a spike; nothing, while that thruster fires right, a bias step.
+        Either way the previous tick was the sensor (``taint_previous``)."""
+        p, who = self._last_fail
+        self._last_fail = None
+        pn = float(np.linalg.norm(p))
+        kind = None
+        if float(np.linalg.norm(r + p)) < self.return_fraction * pn:
+            kind = SPIKE
+        elif float(np.linalg.norm(r)) < self.return_fraction * pn and increments is not None:
+            # That thruster is commanded again and gives more than half its increment.
+            u = np.asarray(increments[who], dtype=float)
+            un = float(np.linalg.norm(u))
+            if un >= 2.0 * self.jump_rad_s and -float(r @ u) / un < 0.5 * un:
+                kind = BIAS_STEP
+        if kind is None:
+            return None
+        self._r_quiet = None
+        return GyroVerdict(True, False, False, True, self._report(kind), r,
+                           taint_previous=True)
+
+    def _noise(self, r: np.ndarray, thrust_abs: float) -> GyroVerdict:
+        """Noise level on quiet ticks, per axis (module doc)."""
         suspect = False
         fault = None
         quiet_prev, self._r_quiet = self._r_quiet, (r.copy() if thrust_abs == 0.0 else None)
@@ -179,17 +310,16 @@ class GyroCheck:
             # Differences of consecutive quiet residuals: a steady residual (a stuck thruster,
             # an unmodelled torque) cancels, sensor noise does not (twice its variance).
             dr = r - quiet_prev
-            r2 = float(dr @ dr)
+            r2 = dr * dr
             self._quiet += 1
+            warm = self._quiet <= self.warmup_ticks
             if self._quiet == 1:
-                self._fast = self._slow = r2
-            self._fast = self.fast_forget * self._fast + (1.0 - self.fast_forget) * r2
-            ref = max(self._slow, self.noise_floor2)
-            # Noise is many large differences, a step (a thruster starting, a torque) one: the
-            # fast mean must be high and most of the last quiet differences large on their own.
+                self._slow = r2.copy()
+            ref = np.maximum(self._slow, self.noise_floor2)
             self._big = (self._big + [r2 > _BIG_RATIO * ref])[-_BIG_WINDOW:]
-            noisy = (self._quiet > self.warmup_ticks and self._fast > self.noise_ratio * ref
-                     and sum(self._big) >= _BIG_COUNT)
+            count = np.sum(self._big, axis=0)
+            noisy = (not warm and len(self._big) == _BIG_WINDOW
+                     and bool((count >= _BIG_COUNT).any()))
             if noisy:
                 self._over += 1
                 suspect = True
@@ -198,9 +328,14 @@ class GyroCheck:
             else:
                 self._over = 0
                 # Each sample counts at most _SLOW_CAP times the level (a robust mean): a
-                # noise increase must not drag the reference up before the fast mean shows it.
-                r2c = min(r2, _SLOW_CAP * max(self._slow, self.noise_floor2))
-                self._slow = self.slow_forget * self._slow + (1.0 - self.slow_forget) * r2c
+                # noise increase must not drag the reference up before the test shows it.
+                # During the warm-up a plain running mean. An axis whose window already
+                # holds _FREEZE_COUNT large differences keeps its level (a noise increase
+                # must not drag the level up while the count builds).
+                r2c = r2 if warm else np.minimum(r2, _SLOW_CAP * ref)
+                a = max(1.0 - self.slow_forget, 1.0 / self._quiet)
+                keep = (count >= _FREEZE_COUNT) & (not warm)
+                self._slow = np.where(keep, self._slow, (1.0 - a) * self._slow + a * r2c)
         elif self._over > 0:
             suspect = True
         return GyroVerdict(suspect, False, False, False, fault, r)

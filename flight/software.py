@@ -153,9 +153,10 @@ class FlightSoftware:
                                  hold_ticks=dc.response_hold_ticks,
                                  effectiveness=self.effectiveness)
         # Sensor check (flight.gyro_check): the jump level from the detector's dead zone, the
-        # noise floor from the gyro's own specification (one-tick difference of three axes).
+        # noise floor from the gyro's own specification (second difference of
+        # the sample, three axes).
         jump = dc.gyro_jump_rad_s if dc.gyro_jump_rad_s is not None else 10.0 * dc.dead_zone_rad_s
-        self.gyro_check = GyroCheck(jump, math.sqrt(12.0) * vehicle.gyro.noise_std_rad_s)
+        self.gyro_check = GyroCheck(jump, math.sqrt(18.0) * vehicle.gyro.noise_std_rad_s)
         self._held: tuple | None = None
         self._window: list[tuple[np.ndarray, np.ndarray, bool]] = []
         # (detection held back, the pair left out of the allocation, ticks left) while probing
@@ -261,7 +262,10 @@ class FlightSoftware:
         else:
             self._omega_pred = pred.omega_calc_B_rad_s
             change = pred.omega_calc_B_rad_s - self._w_prev
-            verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s)
+            inc = None
+            if pred.eff_s is not None:
+                inc = self.arrays.mu_B_rad_s2 * (self.effectiveness.k * pred.eff_s)[:, None]
+            verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s, inc)
             dw = w_hat - self._omega_pred
             det = None
             if verdict.fault is not None:
@@ -270,6 +274,12 @@ class FlightSoftware:
                                     verdict.residual)), source="gyro")
             if verdict.resync:
                 self._resync_on_gyro()
+            if verdict.taint_previous:
+                # The last tick's evidence was the sensor: the residuals restart (no blind
+                # ticks), the effectiveness back to its last trusted value.
+                self.detector.rebaseline(hold_ticks=0)
+                self.effectiveness.restore()
+                self._window = []
             held, self._held = self._held, None
             if held is not None and not verdict.drop_previous:
                 # A held jump the next tick showed to be dynamics: commit it first.
@@ -540,6 +550,7 @@ class FlightSoftware:
         self._window = []
         self._probe = None
         self.gyro_check.forget_pending()
+        self.gyro_check.restart_noise()
         # The evidence restarts on the new configuration: effectiveness back to its last
         # trusted value (healthy thrusters fought the fault), and the observer's flex state,
         # frequency and influence re-initialised (a stuck thruster's thrust was taken in as
