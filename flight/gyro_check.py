@@ -25,11 +25,15 @@ signatures no single thruster fault can produce are recognised:
   |r(n)|``): the output moved, the dynamics did not. A stuck-on thruster repeats its jump tick
   after tick, so it is never a step;
 * "unexplained": with the thrusters' increments of the tick ``u_j = mu_j k_j eff_j`` given,
-  the residual is larger than ``jump_rad_s`` plus what the envelope's thrust errors can put
-  along it (``sum_j 0.4 |u_j . r/|r|| + 0.1 |u_j|``: scale and timing along, direction
-  across) even after taking out up to the whole increment
+  the residual is larger than ``jump_rad_s`` plus what the thrusters' errors can put along it
+  (the envelope's ``sum_j 0.4 |u_j . r/|r|| + 0.1 |u_j|``: scale and timing along, direction
+  across; once learnt, at most 6 times the share of the thrust this run's healthy residuals
+  have been) even after taking out up to the whole increment
   of any one of them (``r + c u_j``, ``0 <= c <= 1``: that thruster failed to fire or is
-  weak), so a fails-to-fire is never taken for a step. Without the increments, larger than
+  weak), so a fails-to-fire is never taken for a step. A jump only one such thruster explains
+  is evidence at once (its learning deferred a tick); if that thruster is commanded again and
+  fires right (more than half its increment) while nothing more comes along the jump, the
+  output stepped, and the thruster evidence restarts. Without the increments, larger than
   ``jump_rad_s + explain_factor * sum_j |u_j|``. A jump right after a jump is dynamics going on
   (a stuck-on thruster) and is not held;
 * **noise increase**: per axis, the differences of ``r`` between consecutive quiet ticks (no
@@ -72,6 +76,10 @@ _FREEZE_COUNT = 3
 # effectiveness explains: along the residual (thrust scale 0.85-1.15 twice over and timing) and
 # in any direction (2 deg of direction error, with margin).
 _ALONG, _ACROSS = 0.4, 0.1
+# Learnt share of the thrust in a healthy tick's residual: the slack is _SHARE_K times it (never
+# more than the envelope's), after _SHARE_WARMUP thrust ticks; forgotten over ~50 ticks, each
+# tick capped at _SHARE_CAP times the mean.
+_SHARE_K, _SHARE_WARMUP, _SHARE_FORGET, _SHARE_CAP = 6.0, 25, 0.98, 3.0
 
 
 @dataclass(frozen=True)
@@ -81,7 +89,9 @@ class GyroVerdict:
     ``resync``: the output moved without the dynamics (re-synchronise estimators on it);
     ``fault``: newly recognised fault kind (first one only) or None; ``residual`` r (3,);
     ``taint_previous``: the previous tick, already evidence, was a sensor error: the thruster
-    evidence restarts."""
+    evidence restarts; ``defer_learning``: evidence for the detector now, for the effectiveness
+    learning only if the next tick does not taint it (a learnt step would move the next
+    tick's prediction and hide the step)."""
 
     suspect: bool
     hold: bool
@@ -90,6 +100,7 @@ class GyroVerdict:
     fault: str | None
     residual: np.ndarray
     taint_previous: bool = False
+    defer_learning: bool = False
 
 
 class GyroCheck:
@@ -123,6 +134,8 @@ class GyroCheck:
         self._repeats = 0
         self._pending: np.ndarray | None = None
         self._last_fail: tuple[np.ndarray, int] | None = None
+        self._share = 0.0
+        self._share_n = 0
         self._run = False
         self._settle = False
         self._r_quiet: np.ndarray | None = None
@@ -196,13 +209,36 @@ class GyroCheck:
         return best
 
     def _slack(self, r: np.ndarray, u: np.ndarray) -> float:
-        """What the envelope's thrust errors can put into a residual along ``r``: each thruster
-        ``_ALONG`` of its increment's share along ``r`` (scale and timing) and ``_ACROSS`` of
-        its increment (direction), on top of ``jump_rad_s``."""
+        """What the thrusters' errors can put into a residual along ``r``, on top of
+        ``jump_rad_s``: at most the envelope's (each thruster ``_ALONG`` of its increment's
+        share along ``r``, scale and timing, and ``_ACROSS`` of its increment, direction), and
+        once learnt (``_SHARE_WARMUP`` thrust ticks) ``_SHARE_K`` times the share of the
+        thrust the residual has been on this run's healthy ticks (``_learn_share``)."""
         n = float(np.linalg.norm(r))
         along = np.abs(u @ (r / n)) if n > 0.0 else np.zeros(len(u))
-        return self.jump_rad_s + float(_ALONG * along.sum()
-                                       + _ACROSS * np.linalg.norm(u, axis=1).sum())
+        total = float(np.linalg.norm(u, axis=1).sum())
+        env = float(_ALONG * along.sum()) + _ACROSS * total
+        if self._share_n >= _SHARE_WARMUP:
+            env = min(env, _SHARE_K * self._share * total)
+        return self.jump_rad_s + env
+
+    def _learn_share(self, r: np.ndarray, u: np.ndarray | None) -> None:
+        """A healthy tick with thrust: the residual's share of the thrust, a mean forgotten
+        with ``_SHARE_FORGET``, each tick capped at ``_SHARE_CAP`` times the mean."""
+        if u is None:
+            return
+        total = float(np.linalg.norm(u, axis=1).sum())
+        if total <= 0.0:
+            return
+        q = float(np.linalg.norm(r)) / total
+        self._share_n += 1
+        if self._share_n == 1:
+            self._share = q
+            return
+        if self._share_n > _SHARE_WARMUP:
+            q = min(q, _SHARE_CAP * self._share)
+        a = max(1.0 - _SHARE_FORGET, 1.0 / self._share_n)
+        self._share = (1.0 - a) * self._share + a * q
 
     def _step(self, y: np.ndarray, predicted_change: np.ndarray,
               thrust_abs: float, increments: np.ndarray | None) -> GyroVerdict:
@@ -271,26 +307,36 @@ class GyroCheck:
             self._r_quiet = None
             return GyroVerdict(True, True, False, False, None, r)
         self._run = False
+        if why == -1:
+            self._learn_share(r, increments)
         if why >= 0 and not continuation:
             # Only one thruster failing to fire explains the jump: it is evidence now (no
             # delay for a real failure), and judged again on the next tick.
             self._last_fail = (r.copy(), why)
             self._r_quiet = None
-            return GyroVerdict(False, False, False, False, None, r)
+            return GyroVerdict(False, False, False, False, None, r, defer_learning=True)
         return self._noise(r, thrust_abs)
 
     def _after_fail(self, r: np.ndarray, increments: np.ndarray | None) -> GyroVerdict | None:
         """The tick after a jump only one thruster's failure explained (already evidence):
-        the opposite jump is a spike; nothing, while that thruster fires right, a bias step.
+        the opposite jump is a spike (``-2s``: a counter glitch); nothing, while that thruster
+        fires right, a bias step.
         Either way the previous tick was the sensor (``taint_previous``)."""
         p, who = self._last_fail
         self._last_fail = None
         pn = float(np.linalg.norm(p))
         kind = None
+        settle = False
         if float(np.linalg.norm(r + p)) < self.return_fraction * pn:
             kind = SPIKE
-        elif float(np.linalg.norm(r)) < self.return_fraction * pn and increments is not None:
-            # That thruster is commanded again and gives more than half its increment.
+        elif float(np.linalg.norm(r + 2.0 * p)) < 2.0 * self.return_fraction * pn:
+            kind, settle = SPIKE, True
+        elif increments is not None and float(r @ p) < self.return_fraction * pn * pn \
+                and float(np.linalg.norm(r)) <= self.return_fraction * pn + self._slack(
+                    r, np.asarray(increments, dtype=float)):
+            # Nothing more along the jump (a weak thruster repeats its deficit along it), the
+            # rest within the thrusters' errors, and that thruster commanded again giving
+            # more than half its increment.
             u = np.asarray(increments[who], dtype=float)
             un = float(np.linalg.norm(u))
             if un >= 2.0 * self.jump_rad_s and -float(r @ u) / un < 0.5 * un:
@@ -298,7 +344,8 @@ class GyroCheck:
         if kind is None:
             return None
         self._r_quiet = None
-        return GyroVerdict(True, False, False, True, self._report(kind), r,
+        self._settle = settle
+        return GyroVerdict(True, False, False, not settle, self._report(kind), r,
                            taint_previous=True)
 
     def _noise(self, r: np.ndarray, thrust_abs: float) -> GyroVerdict:

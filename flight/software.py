@@ -158,6 +158,7 @@ class FlightSoftware:
         jump = dc.gyro_jump_rad_s if dc.gyro_jump_rad_s is not None else 10.0 * dc.dead_zone_rad_s
         self.gyro_check = GyroCheck(jump, math.sqrt(18.0) * vehicle.gyro.noise_std_rad_s)
         self._held: tuple | None = None
+        self._deferred_learning: tuple | None = None
         self._window: list[tuple[np.ndarray, np.ndarray, bool]] = []
         # (detection held back, the pair left out of the allocation, ticks left) while probing
         self._probe: tuple[Detection | None, tuple[int, int], int] | None = None
@@ -239,6 +240,7 @@ class FlightSoftware:
             self._omega_pred = pred.omega_calc_B_rad_s
             self.gyro_check.skip(self._y)
             self._held = None
+            self._deferred_learning = None
             self._det_out = self.detector.skip(w_hat - self._omega_pred)
             self._w_prev = w_hat.copy()
             self.model.resync(w_hat)
@@ -274,12 +276,14 @@ class FlightSoftware:
                                     verdict.residual)), source="gyro")
             if verdict.resync:
                 self._resync_on_gyro()
+            deferred, self._deferred_learning = self._deferred_learning, None
             if verdict.taint_previous:
                 # The last tick's evidence was the sensor: the residuals restart (no blind
-                # ticks), the effectiveness back to its last trusted value.
+                # ticks); its learning, deferred, is dropped.
                 self.detector.rebaseline(hold_ticks=0)
-                self.effectiveness.restore()
                 self._window = []
+            elif deferred is not None:
+                self._learn(*deferred)
             held, self._held = self._held, None
             if held is not None and not verdict.drop_previous:
                 # A held jump the next tick showed to be dynamics: commit it first.
@@ -291,7 +295,8 @@ class FlightSoftware:
             elif verdict.suspect:
                 self._det_out = self.detector.skip(dw)
             else:
-                d_now = self._commit(self._tick, dw, pred, avail, self._obs.innovation_B_rad_s)
+                d_now = self._commit(self._tick, dw, pred, avail, self._obs.innovation_B_rad_s,
+                                     learn=not verdict.defer_learning)
                 det = det or d_now
         self._w_prev = w_hat.copy()
         if self.kalman is not None and pred is not None:
@@ -314,7 +319,7 @@ class FlightSoftware:
                 self.rebaseline()
 
     def _commit(self, tick: int, dw: np.ndarray, pred: Prediction, avail: np.ndarray,
-                eps: np.ndarray) -> Detection | None:
+                eps: np.ndarray, learn: bool = True) -> Detection | None:
         """Feed one tick's residual to the detector and the observer's innovation ``eps`` (the
         error before the observer's correction: the adaptive observer's residual is only W5 of
         it on switching ticks) to the effectiveness learning."""
@@ -352,12 +357,19 @@ class FlightSoftware:
                 self.detector.latched = det if det is not None else out.detection
                 return det
         if out.detection is None and not out.held and pred.eff_s is not None:
-            self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat)
-            if pred.deff_dlat is not None:
-                self.model.set_latency_offset(self.effectiveness.latency_s)
-            if self.detector.quiet():
-                self.effectiveness.trust()
+            if learn:
+                self._learn(eps, pred, avail)
+            else:
+                self._deferred_learning = (eps, pred, avail)
         return out.detection
+
+    def _learn(self, eps: np.ndarray, pred: Prediction, avail: np.ndarray) -> None:
+        """One tick of the effectiveness learning (and the latency it may learn)."""
+        self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat)
+        if pred.deff_dlat is not None:
+            self.model.set_latency_offset(self.effectiveness.latency_s)
+        if self.detector.quiet():
+            self.effectiveness.trust()
 
     def _suspect(self, tick: int, avail: np.ndarray) -> None:
         """Start a probe when a thruster failing and its opposite stuck on are both building
@@ -547,6 +559,7 @@ class FlightSoftware:
         """After an FDIR reconfiguration: restart the residuals and the model's own state."""
         self.detector.rebaseline()
         self._held = None
+        self._deferred_learning = None
         self._window = []
         self._probe = None
         self.gyro_check.forget_pending()
