@@ -273,6 +273,10 @@ class DetectorCfg(_Model):
     # A one-tick rate jump above this, unexplained by the thrust of the tick, is a gyro error
     # candidate (flight.gyro_check); None: 10 x dead_zone_rad_s.
     gyro_jump_rad_s: PosFloat | None = None
+    # A one-tick rate jump above this (and not above the jump level), unexplained by the thrust
+    # of the tick, is held a tick: kept out of the thruster evidence unless the next tick
+    # repeats it along its direction (flight.gyro_check); None: the jump level.
+    gyro_hold_rad_s: PosFloat | None = None
 
 
 class KalmanCfg(_Model):

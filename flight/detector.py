@@ -122,6 +122,11 @@ def opposite_matrix(e_B: np.ndarray, opposite_deg: float) -> np.ndarray:
 
 # Ticks of a thruster's own burns the reported thrust fraction is the mean of.
 _FRACTION_TICKS = 3
+# The absolute dead zone is at least this many times the measured sensor noise (the norm over
+# the axes of the one-tick difference's sigma): white noise's residual norm exceeds it on 5e-8
+# of the ticks (chi-square(3) above 36.75). A sensor at its own noise keeps the configured dead
+# zone (iss_rs's quiet ticks measure 5.1e-7 rad/s at the median: 1.8e-6 against its 2e-6).
+NOISE_DEAD_ZONE = 3.5
 
 
 # Normalised innovation (chi^2, 3 degrees of freedom) above which the effectiveness estimate of
@@ -369,6 +374,7 @@ class Detector:
         self.opposite = opposite_matrix(
             self.e_B, cfg.same_direction_deg if opposite_deg is None else opposite_deg)
         self.hold_ticks = int(hold_ticks)
+        self.noise_rad_s = 0.0  # measured sensor noise (dead_zone_rad_s), set by the flight
         self.thresholds_on = np.full(n, float(cfg.threshold_on))
         self.thresholds_off = np.full(n, float(cfg.threshold_off))
         self.rho_on = np.zeros(n)
@@ -396,7 +402,7 @@ class Detector:
         m = np.abs(np.asarray(commanded_rad_s, dtype=float))
         a, b = cfg.relative_dead_zone, float(cfg.relative_dead_zone_across or 0.0)
         wa, wb = (m * a) ** 2, (m * b) ** 2
-        S = (cfg.dead_zone_rad_s**2 + float(wb.sum())) * np.eye(3) \
+        S = (self.dead_zone_rad_s()**2 + float(wb.sum())) * np.eye(3) \
             + (self.e_B * (wa - wb)[:, None]).T @ self.e_B
         dw = np.asarray(dw_B_rad_s, dtype=float)
         if not np.any(dw):
@@ -411,9 +417,15 @@ class Detector:
         dw = np.asarray(dw_B_rad_s, dtype=float)
         if not np.any(dw):
             return True
-        S = cfg.dead_zone_rad_s**2 * np.eye(3) + \
+        S = self.dead_zone_rad_s()**2 * np.eye(3) + \
             float(cfg.relative_dead_zone_sigma) ** 2 * np.asarray(thrust_cov, dtype=float)
         return float(dw @ np.linalg.solve(S, dw)) < 1.0
+
+    def dead_zone_rad_s(self) -> float:
+        """The absolute dead zone: ``dead_zone_rad_s``, or ``NOISE_DEAD_ZONE`` times the
+        sensor noise measured now (``noise_rad_s``, set by the flight from the gyro check)
+        when that is larger: a noisier gyro must not read as thrusters."""
+        return max(self.cfg.dead_zone_rad_s, NOISE_DEAD_ZONE * self.noise_rad_s)
 
     def project(self, dw_B_rad_s: np.ndarray, commanded_abs_rad_s: float = 0.0,
                 inside: bool | None = None) -> tuple[np.ndarray, float, bool]:
@@ -426,7 +438,7 @@ class Detector:
         dw = np.asarray(dw_B_rad_s, dtype=float)
         norm = float(np.linalg.norm(dw))
         if inside is None:
-            dz = (self.cfg.dead_zone_rad_s
+            dz = (self.dead_zone_rad_s()
                   + self.cfg.relative_dead_zone * float(commanded_abs_rad_s))
             inside = norm < dz
         if inside or norm == 0.0:

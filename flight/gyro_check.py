@@ -33,7 +33,12 @@ signatures no single thruster fault can produce are recognised:
   weak), so a fails-to-fire is never taken for a step. A jump only one such thruster explains
   is evidence at once (its learning deferred a tick); if that thruster is commanded again and
   fires right (more than half its increment) while nothing more comes along the jump, the
-  output stepped, and the thruster evidence restarts. Without the increments, larger than
+  output stepped, and the thruster evidence restarts. A held jump the next tick neither
+  explains as the sensor's nor repeats along itself (``r(n+1) . r(n) >= 0.5 |r(n)|^2``, a
+  stuck-on thruster) is dropped from the evidence without a name. ``hold_rad_s`` (default the
+  jump level) may hold smaller jumps too: they are never named, only kept out unless repeated
+  (a vehicle whose detector decides on one tick, iss_rs, keeps a noisy sensor's single large
+  ticks out of its evidence this way). Without the increments, larger than
   ``jump_rad_s + explain_factor * sum_j |u_j|``. A jump right after a jump is dynamics going on
   (a stuck-on thruster) and is not held;
 * **noise increase**: per axis, the differences of ``r`` between consecutive quiet ticks (no
@@ -50,18 +55,24 @@ While a jump waits for its next tick, and while the output is frozen or noisy, t
 learning (the evidence stays clean), and after a recognised jump it re-synchronises the observer
 and the Kalman filter on the new output. The first recognised fault is reported once
 (``fault``: ``spike``, ``bias_step``, ``frozen`` or ``noise``); later anomalies keep the gyro
-suspect without a new report (one sensor, one report).
+suspect without a new report (one sensor, one report). After a noise increase the gyro stays
+suspect while the quiet ticks' median level is twice the level it was named against.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 SPIKE, BIAS_STEP, FROZEN, NOISE = "spike", "bias_step", "frozen", "noise"
-# A quiet tick's square residual enters the long-run noise level capped at this many times it.
-_SLOW_CAP = 9.0
+# A quiet tick's square residual enters the long-run noise level capped at this many times it;
+# the capped mean of a chi-square(1) settles at _SLOW_BIAS of its mean (E[min(X, 4 m)] = m),
+# which the reference divides out.
+_SLOW_CAP, _SLOW_BIAS = 4.0, 0.90
+# After a noise increase was named the gyro stays suspect while an axis's median level (last
+# _BIG_WINDOW quiet differences) is above this many times the level it was named against.
+_NOISY_AGAIN = 2.0
 # Per axis, of the last _BIG_WINDOW quiet differences at least _BIG_COUNT above _BIG_RATIO times
 # the axis's level (a robust order statistic: one step, a thruster starting or a torque, is one
 # large difference; noise is many), for noise_ticks ticks in a row. Consecutive differences of
@@ -85,7 +96,8 @@ _SHARE_K, _SHARE_WARMUP, _SHARE_FORGET, _SHARE_CAP = 6.0, 25, 0.98, 3.0
 @dataclass(frozen=True)
 class GyroVerdict:
     """One tick of the check. ``suspect``: keep this tick out of the thruster evidence;
-    ``drop_previous``: the previous tick (held back as a possible jump) was a gyro error too;
+    ``drop_previous``: the previous tick (held back as a possible jump) was a gyro error too,
+    or no evidence (neither the sensor's pattern nor repeated along itself);
     ``resync``: the output moved without the dynamics (re-synchronise estimators on it);
     ``fault``: newly recognised fault kind (first one only) or None; ``residual`` r (3,);
     ``taint_previous``: the previous tick, already evidence, was a sensor error: the thruster
@@ -116,8 +128,9 @@ class GyroCheck:
     def __init__(self, jump_rad_s: float, noise_floor_rad_s: float, *,
                  explain_factor: float = 1.5, return_fraction: float = 0.3,
                  slow_forget: float = 0.995, noise_ticks: int = 3, warmup_ticks: int = 30,
-                 start_ticks: int = 2) -> None:
+                 start_ticks: int = 2, hold_rad_s: float | None = None) -> None:
         self.jump_rad_s = float(jump_rad_s)
+        self.hold_rad_s = self.jump_rad_s if hold_rad_s is None else float(hold_rad_s)
         # per axis: a third of the three axes' floor (sensor noise sigma: 18 sigma^2 for the
         # second difference of three axes)
         self.noise_floor2 = float(noise_floor_rad_s) ** 2 / 3.0
@@ -134,12 +147,16 @@ class GyroCheck:
         self._repeats = 0
         self._pending: np.ndarray | None = None
         self._last_fail: tuple[np.ndarray, int] | None = None
+        self._pending_named = False
+        self._noisy_ref: np.ndarray | None = None
+        self._noisy_now = False
         self._share = 0.0
         self._share_n = 0
         self._run = False
         self._settle = False
         self._r_quiet: np.ndarray | None = None
         self._big: list[np.ndarray] = []
+        self._recent: list[np.ndarray] = []
         self._slow = np.zeros(3)
         self._quiet = 0
         self._over = 0
@@ -158,9 +175,20 @@ class GyroCheck:
         old level would call a noisier sensor)."""
         self._r_quiet = None
         self._big = []
+        self._recent = []
         self._slow = np.zeros(3)
         self._quiet = 0
         self._over = 0
+
+    def noise_rad_s(self) -> float:
+        """The sensor noise the quiet ticks show now: the norm over the axes of the one-tick
+        difference's sigma, from the median of each axis's last ``_BIG_WINDOW`` squared second
+        differences (a chi-square(1) median is 0.455 of the mean; a second difference of white
+        noise has three times the variance of a first). 0 until the window is full."""
+        if len(self._recent) < _BIG_WINDOW:
+            return 0.0
+        level = np.median(np.asarray(self._recent), axis=0) / 0.455
+        return float(np.sqrt(level.sum() / 3.0))
 
     def skip(self, y: np.ndarray) -> None:
         """A tick whose data is not evidence (sample missing or propagated, command not
@@ -179,11 +207,15 @@ class GyroCheck:
     def step(self, y: np.ndarray, predicted_change: np.ndarray,
              thrust_abs: float, increments: np.ndarray | None = None) -> GyroVerdict:
         v = self._step(y, predicted_change, thrust_abs, increments)
+        if self._noisy_now and not v.suspect:
+            # A gyro known to be noisy: no tick of it is thruster evidence.
+            self._pending = None
+            v = replace(v, suspect=True, hold=False, drop_previous=True, defer_learning=False)
         self.suspect = v.suspect
         return v
 
     def explained(self, r: np.ndarray, thrust_abs: float,
-                  increments: np.ndarray | None) -> int | None:
+                  increments: np.ndarray | None, base: float | None = None) -> int | None:
         """Can the thrusters of the tick explain the residual ``r``? None: no; -1: yes, as the
         envelope's errors; ``j``: only as thruster ``j`` failing to fire or weak.
 
@@ -191,12 +223,13 @@ class GyroCheck:
         the envelope's errors of the thrusters (``_slack``), else after taking out at most the
         whole increment of one thruster of the tick (``r + c u_j``, ``0 <= c <= 1``). A
         stuck-on thruster's first jump is not explained: the next tick tells (it repeats)."""
+        base = self.jump_rad_s if base is None else float(base)
         norm = float(np.linalg.norm(r))
         if increments is None:
-            ok = norm <= self.jump_rad_s + self.explain_factor * float(thrust_abs)
+            ok = norm <= base + self.explain_factor * float(thrust_abs)
             return -1 if ok else None
         u = np.asarray(increments, dtype=float)
-        if norm <= self._slack(r, u):
+        if norm <= self._slack(r, u, base):
             return -1
         uu = np.einsum("ij,ij->i", u, u)
         best, best_rest = None, np.inf
@@ -204,11 +237,11 @@ class GyroCheck:
             c = min(max(-float(u[j] @ r) / float(uu[j]), 0.0), 1.0)
             rest = r + c * u[j]
             nr = float(np.linalg.norm(rest))
-            if nr <= self._slack(rest, u) and nr < best_rest:
+            if nr <= self._slack(rest, u, base) and nr < best_rest:
                 best, best_rest = int(j), nr
         return best
 
-    def _slack(self, r: np.ndarray, u: np.ndarray) -> float:
+    def _slack(self, r: np.ndarray, u: np.ndarray, base: float | None = None) -> float:
         """What the thrusters' errors can put into a residual along ``r``, on top of
         ``jump_rad_s``: at most the envelope's (each thruster ``_ALONG`` of its increment's
         share along ``r``, scale and timing, and ``_ACROSS`` of its increment, direction), and
@@ -220,7 +253,7 @@ class GyroCheck:
         env = float(_ALONG * along.sum()) + _ACROSS * total
         if self._share_n >= _SHARE_WARMUP:
             env = min(env, _SHARE_K * self._share * total)
-        return self.jump_rad_s + env
+        return (self.jump_rad_s if base is None else base) + env
 
     def _learn_share(self, r: np.ndarray, u: np.ndarray | None) -> None:
         """A healthy tick with thrust: the residual's share of the thrust, a mean forgotten
@@ -276,15 +309,19 @@ class GyroCheck:
             if v is not None:
                 return v
         continuation = False
+        dropped = False
         if self._pending is not None:
             p = self._pending
             pn = float(np.linalg.norm(p))
+            named, self._pending_named = self._pending_named, False
             self._pending = None
             kind = None
             settle = False
             # No thruster fault turns its residual around: a stuck-on thruster adds along its
             # direction on every tick, one that fails removes on every tick commanded.
-            if float(np.linalg.norm(r + p)) < self.return_fraction * pn:
+            if not named:
+                pass
+            elif float(np.linalg.norm(r + p)) < self.return_fraction * pn:
                 kind = SPIKE  # one bad sample of a rate gyro: +s, -s
             elif float(np.linalg.norm(r + 2.0 * p)) < 2.0 * self.return_fraction * pn:
                 kind, settle = SPIKE, True  # one bad counter reading: +s, -2s, +s
@@ -294,8 +331,11 @@ class GyroCheck:
                 self._settle = settle
                 self._r_quiet = None
                 return GyroVerdict(True, False, True, not settle, self._report(kind), r)
-            continuation = True
-        why = self.explained(r, thrust_abs, increments)
+            if float(r @ p) >= 0.5 * pn * pn:
+                continuation = True  # the jump repeats along itself: dynamics (stuck on)
+            else:
+                dropped = True  # neither the sensor's pattern nor a thruster's: not evidence
+        why = self.explained(r, thrust_abs, increments, self.hold_rad_s)
         if why is None:
             if continuation or self._run:
                 # A jump that follows a jump is dynamics going on (a stuck thruster): commit it
@@ -304,8 +344,10 @@ class GyroCheck:
                 self._r_quiet = None
                 return GyroVerdict(False, False, False, False, None, r)
             self._pending = r.copy()
+            self._pending_named = (self.hold_rad_s >= self.jump_rad_s or self.explained(
+                r, thrust_abs, increments) is None)
             self._r_quiet = None
-            return GyroVerdict(True, True, False, False, None, r)
+            return GyroVerdict(True, True, dropped, False, None, r)
         self._run = False
         if why == -1:
             self._learn_share(r, increments)
@@ -314,8 +356,9 @@ class GyroCheck:
             # delay for a real failure), and judged again on the next tick.
             self._last_fail = (r.copy(), why)
             self._r_quiet = None
-            return GyroVerdict(False, False, False, False, None, r, defer_learning=True)
-        return self._noise(r, thrust_abs)
+            return GyroVerdict(False, False, dropped, False, None, r, defer_learning=True)
+        v = self._noise(r, thrust_abs)
+        return replace(v, drop_previous=True) if dropped else v
 
     def _after_fail(self, r: np.ndarray, increments: np.ndarray | None) -> GyroVerdict | None:
         """The tick after a jump only one thruster's failure explained (already evidence):
@@ -362,27 +405,37 @@ class GyroCheck:
             warm = self._quiet <= self.warmup_ticks
             if self._quiet == 1:
                 self._slow = r2.copy()
-            ref = np.maximum(self._slow, self.noise_floor2)
+            ref = np.maximum(self._slow / (1.0 if warm else _SLOW_BIAS), self.noise_floor2)
             self._big = (self._big + [r2 > _BIG_RATIO * ref])[-_BIG_WINDOW:]
+            self._recent = (self._recent + [r2])[-_BIG_WINDOW:]
             count = np.sum(self._big, axis=0)
             noisy = (not warm and len(self._big) == _BIG_WINDOW
                      and bool((count >= _BIG_COUNT).any()))
+            if self._noisy_ref is not None:
+                # After a noise increase was named: suspect while the axes' median level is
+                # still above _NOISY_AGAIN times the level it was named against.
+                med = np.median(np.asarray(self._recent), axis=0) / 0.455
+                self._noisy_now = bool((med > _NOISY_AGAIN * self._noisy_ref).any())
+                noisy = noisy or self._noisy_now
             if noisy:
                 self._over += 1
                 suspect = True
                 if self._over >= self.noise_ticks:
                     fault = self._report(NOISE)
+                    if fault is not None:
+                        self._noisy_ref = ref.copy()
+                        self._noisy_now = True
             else:
                 self._over = 0
                 # Each sample counts at most _SLOW_CAP times the level (a robust mean): a
                 # noise increase must not drag the reference up before the test shows it.
-                # During the warm-up a plain running mean. An axis whose window already
-                # holds _FREEZE_COUNT large differences keeps its level (a noise increase
-                # must not drag the level up while the count builds).
-                r2c = r2 if warm else np.minimum(r2, _SLOW_CAP * ref)
-                a = max(1.0 - self.slow_forget, 1.0 / self._quiet)
+                # During the warm-up a running mean (capped from the floor). An axis whose
+                # window already holds _FREEZE_COUNT large differences keeps its level (a
+                # noise increase must not drag the level up while the count builds).
+                r2c = np.minimum(r2, _SLOW_CAP * np.maximum(self._slow, self.noise_floor2))
+                a = 1.0 / self._quiet if warm else 1.0 - self.slow_forget
                 keep = (count >= _FREEZE_COUNT) & (not warm)
                 self._slow = np.where(keep, self._slow, (1.0 - a) * self._slow + a * r2c)
-        elif self._over > 0:
+        elif self._over > 0 or self._noisy_now:
             suspect = True
         return GyroVerdict(suspect, False, False, False, fault, r)

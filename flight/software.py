@@ -156,7 +156,8 @@ class FlightSoftware:
         # noise floor from the gyro's own specification (second difference of
         # the sample, three axes).
         jump = dc.gyro_jump_rad_s if dc.gyro_jump_rad_s is not None else 10.0 * dc.dead_zone_rad_s
-        self.gyro_check = GyroCheck(jump, math.sqrt(18.0) * vehicle.gyro.noise_std_rad_s)
+        self.gyro_check = GyroCheck(jump, math.sqrt(18.0) * vehicle.gyro.noise_std_rad_s,
+                                    hold_rad_s=dc.gyro_hold_rad_s)
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
         self._window: list[tuple[np.ndarray, np.ndarray, bool]] = []
@@ -268,6 +269,7 @@ class FlightSoftware:
             if pred.eff_s is not None:
                 inc = self.arrays.mu_B_rad_s2 * (self.effectiveness.k * pred.eff_s)[:, None]
             verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s, inc)
+            self.detector.noise_rad_s = self.gyro_check.noise_rad_s()
             dw = w_hat - self._omega_pred
             det = None
             if verdict.fault is not None:
