@@ -122,10 +122,9 @@ def opposite_matrix(e_B: np.ndarray, opposite_deg: float) -> np.ndarray:
 
 # Ticks of a thruster's own burns the reported thrust fraction is the mean of.
 _FRACTION_TICKS = 3
-# The absolute dead zone is at least this many times the measured sensor noise (the norm over
-# the axes of the one-tick difference's sigma): white noise's residual norm exceeds it on 5e-8
-# of the ticks (chi-square(3) above 36.75). A sensor at its own noise keeps the configured dead
-# zone (iss_rs's quiet ticks measure 5.1e-7 rad/s at the median: 1.8e-6 against its 2e-6).
+# The absolute dead zone is at least this many times the measured sensor noise
+# (GyroCheck.noise_rad_s): a sensor at its own noise keeps the configured dead zone on every
+# vehicle; a noisier one widens it in proportion, so it does not read as thrusters.
 NOISE_DEAD_ZONE = 3.5
 
 

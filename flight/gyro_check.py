@@ -41,8 +41,10 @@ signatures no single thruster fault can produce are recognised:
   ticks out of its evidence this way). Without the increments, larger than
   ``jump_rad_s + explain_factor * sum_j |u_j|``. A jump right after a jump is dynamics going on
   (a stuck-on thruster) and is not held;
-* **noise increase**: per axis, the differences of ``r`` between consecutive quiet ticks (no
-  thrust inside either; a steady residual such as a stuck thruster's cancels) against the
+* **noise increase**: per axis, the differences of the observer's innovation (the sample
+  minus its one-step prediction, flex included; ``r`` when none is given) between consecutive
+  quiet ticks (no thrust inside either; a steady residual such as a stuck thruster's cancels,
+  and a ringing mode the observer follows is not counted as noise) against the
   axis's long-run level (forgotten with ``slow_forget``, each sample capped at ``_SLOW_CAP``
   times the level, frozen while the gyro is suspect or the axis's window holds three large
   differences, never under the floor from
@@ -150,6 +152,7 @@ class GyroCheck:
         self._pending_named = False
         self._noisy_ref: np.ndarray | None = None
         self._noisy_now = False
+        self._innovation: np.ndarray | None = None
         self._share = 0.0
         self._share_n = 0
         self._run = False
@@ -181,10 +184,10 @@ class GyroCheck:
         self._over = 0
 
     def noise_rad_s(self) -> float:
-        """The sensor noise the quiet ticks show now: the norm over the axes of the one-tick
-        difference's sigma, from the median of each axis's last ``_BIG_WINDOW`` squared second
-        differences (a chi-square(1) median is 0.455 of the mean; a second difference of white
-        noise has three times the variance of a first). 0 until the window is full."""
+        """The sensor noise the quiet ticks show now, a scale in rad/s: the square root of a
+        third of the sum over the axes of the level of the squared differences of consecutive
+        quiet ticks' noise input (the level from the median of the last ``_BIG_WINDOW``: a
+        chi-square(1) median is 0.455 of the mean). 0 until the window is full."""
         if len(self._recent) < _BIG_WINDOW:
             return 0.0
         level = np.median(np.asarray(self._recent), axis=0) / 0.455
@@ -205,7 +208,9 @@ class GyroCheck:
         return kind
 
     def step(self, y: np.ndarray, predicted_change: np.ndarray,
-             thrust_abs: float, increments: np.ndarray | None = None) -> GyroVerdict:
+             thrust_abs: float, increments: np.ndarray | None = None,
+             innovation: np.ndarray | None = None) -> GyroVerdict:
+        self._innovation = None if innovation is None else np.asarray(innovation, float)
         v = self._step(y, predicted_change, thrust_abs, increments)
         if self._noisy_now and not v.suspect:
             # A gyro known to be noisy: no tick of it is thruster evidence.
@@ -357,7 +362,8 @@ class GyroCheck:
             self._last_fail = (r.copy(), why)
             self._r_quiet = None
             return GyroVerdict(False, False, dropped, False, None, r, defer_learning=True)
-        v = self._noise(r, thrust_abs)
+        v = self._noise(r if self._innovation is None else self._innovation, thrust_abs)
+        v = replace(v, residual=r)
         return replace(v, drop_previous=True) if dropped else v
 
     def _after_fail(self, r: np.ndarray, increments: np.ndarray | None) -> GyroVerdict | None:

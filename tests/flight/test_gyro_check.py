@@ -167,3 +167,21 @@ def test_a_noise_increase_on_one_axis_is_named(factor: float, median_max: int,
         assert k is not None and k >= 100, (seed, k)
         ticks.append(k - 100)
     assert np.median(ticks) <= median_max and max(ticks) <= all_max, ticks
+
+
+def test_a_small_jump_below_the_naming_level_is_held_and_dropped_unless_repeated() -> None:
+    """``hold_rad_s`` under the jump level: a lone 5e-4 jump (half the jump level) is held a
+    tick and dropped from the evidence without a name; the same jump repeated along itself (a
+    stuck-on thruster) is committed."""
+    n = 40
+    ys = _quiet(n)
+    ys[20, 0] += 5e-4  # one bad sample, half the jump level
+    chk = GyroCheck(jump_rad_s=1e-3, noise_floor_rad_s=np.sqrt(18) * NOISE_STD, hold_rad_s=2e-4)
+    v = _feed(chk, ys)
+    assert v[20].hold and v[21].drop_previous and not any(x.fault for x in v)
+    ys = _quiet(n)
+    ys[20:, 0] += 5e-4 * np.arange(1, n - 19)  # 5e-4 more every tick
+    v = _feed(GyroCheck(jump_rad_s=1e-3, noise_floor_rad_s=np.sqrt(18) * NOISE_STD,
+                        hold_rad_s=2e-4), ys)
+    assert v[20].hold and not v[21].drop_previous and not v[21].suspect
+    assert not any(x.fault for x in v)
