@@ -689,7 +689,7 @@ def _print_verdict(s: dict, out: Path) -> None:
         print(f"  detection: {d['type']} {d['thruster']} at {d['t_s']:.1f} s, latency {lat}, "
               f"{'correct' if d['correct'] else 'WRONG'}")
     for f in s["missed_faults"]:
-        print(f"  missed: {f['type']} {f['thruster']} at {f['t_s']:.1f} s")
+        print(f"  missed: {f['type']} {f['thruster'] or 'the gyro'} at {f['t_s']:.1f} s")
     print(f"  compute ms p50/p99/max: {s['compute_ms']['p50']}/{s['compute_ms']['p99']}/"
           f"{s['compute_ms']['max']}, overruns {s['overruns']}")
     logged = s.get("lcm_log_telemetry")

@@ -77,9 +77,13 @@ def match_detections(
             row.update(latency_s=round(d["t_s"] - faults[best]["t_s"], 6), correct=True)
             detected_faults.add(best)
         out.append(row)
+    # A fault is missed without its detection: a thruster fault, or a gyro fault (a sensor
+    # fault named as a thruster is a false alarm and a missed gyro fault). Bus faults are not
+    # FDIR's to find.
     missed = [
         f for k, f in enumerate(faults)
-        if f.get("thruster") is not None and k not in detected_faults
+        if (f.get("thruster") is not None or str(f.get("type", "")).startswith("gyro_"))
+        and k not in detected_faults
     ]
     return out, false_alarms, missed
 

@@ -97,6 +97,24 @@ def test_a_false_gyro_fault_in_a_fault_free_run_is_a_false_alarm_not_a_failure()
     assert r["verdict"] == "false_alarm" and r["reason"] is None
 
 
+@pytest.mark.parametrize(("detections", "verdict"), [
+    ([], "missed"),
+    ([{"t_s": 9.0, "thruster": "A", "type": "stuck_on", "correct": False}], "misidentified"),
+    ([{"t_s": 9.0, "thruster": None, "type": "gyro_fault", "gyro": "spike", "correct": True,
+       "latency_s": 1.0}], "detected"),
+])
+def test_a_gyro_fault_is_judged_like_a_thruster_fault(detections, verdict) -> None:
+    """A gyro fault nobody named is missed, one named as a thruster misidentified (through
+    the summary's own matching, hil.summary.match_detections)."""
+    from hil.summary import match_detections
+    fault = {"t_s": 8.0, "thruster": None, "type": "gyro_spike"}
+    matched, false_alarms, missed = match_detections([fault], detections)
+    spec = replace(SPEC, fault={"kind": "gyro_spike", "thruster": None, "t_s": 8.0, "axis": 0})
+    r = classify(spec, _summary(detections=matched, false_alarms=false_alarms,
+                                missed_faults=missed, faults=[fault]))
+    assert r["verdict"] == verdict
+
+
 def test_verdicts() -> None:
     assert classify(SPEC, _summary(), commanded_after=True)["verdict"] == "missed"
     r = classify(SPEC, _summary(), commanded_after=False)
