@@ -271,7 +271,7 @@ class DetectorCfg(_Model):
     # 2 ticks 10 of 14, 5 ticks 10 of 14, 10 ticks 3 of 14, 15 ticks 0 of 14.
     response_hold_ticks: int = Field(default=15, ge=0)
     # A one-tick rate jump above this, unexplained by the thrust of the tick, is a gyro error
-    # candidate (flight.gyro_check); None: 10 x dead_zone_rad_s.
+    # candidate (flight.gyro_check); None: 5 x dead_zone_rad_s (flight.software.JUMP_DZ).
     gyro_jump_rad_s: PosFloat | None = None
     # A one-tick rate jump above this (and not above the jump level), unexplained by the thrust
     # of the tick, is held a tick: kept out of the thruster evidence unless the next tick

@@ -50,6 +50,9 @@ from flight.onboard_model import OnboardModel, Prediction
 
 _Y_ORBIT = np.array([0.0, 1.0, 0.0])  # local vertical in the orbit frame (seed 003 eq. 9)
 # Ticks of residuals and burns kept to tell a leak from its opposite thruster's deficit.
+# A one-tick raw rate jump above this many dead zones (plus what the thrusters of the tick can
+# explain) is a gyro-error candidate (flight.gyro_check), unless the vehicle sets its own.
+JUMP_DZ = 5.0
 _ISOLATION_TICKS = 10
 # A hypothesis replaces the detector's when its residual sum of squares is this many times
 # smaller. chosen: a factor that noise over 10 ticks does not reach by chance.
@@ -155,7 +158,8 @@ class FlightSoftware:
         # Sensor check (flight.gyro_check): the jump level from the detector's dead zone, the
         # noise floor from the gyro's own specification (second difference of
         # the sample, three axes).
-        jump = dc.gyro_jump_rad_s if dc.gyro_jump_rad_s is not None else 10.0 * dc.dead_zone_rad_s
+        jump = (dc.gyro_jump_rad_s if dc.gyro_jump_rad_s is not None
+                else JUMP_DZ * dc.dead_zone_rad_s)
         self.gyro_check = GyroCheck(jump, math.sqrt(18.0) * vehicle.gyro.noise_std_rad_s,
                                     hold_rad_s=dc.gyro_hold_rad_s)
         self._held: tuple | None = None
@@ -293,13 +297,14 @@ class FlightSoftware:
                 d_held = self._commit(*held)
                 det = det or d_held
             if verdict.hold:
-                self._held = (self._tick, dw, pred, avail, self._obs.innovation_B_rad_s)
+                self._held = (self._tick, dw, pred, avail, self._obs.innovation_B_rad_s, True,
+                              verdict.residual)
                 self._det_out = self.detector.skip(dw)
             elif verdict.suspect:
                 self._det_out = self.detector.skip(dw)
             else:
                 d_now = self._commit(self._tick, dw, pred, avail, self._obs.innovation_B_rad_s,
-                                     learn=not verdict.defer_learning)
+                                     learn=not verdict.defer_learning, raw=verdict.residual)
                 det = det or d_now
         self._w_prev = w_hat.copy()
         if self.kalman is not None and pred is not None:
@@ -321,19 +326,31 @@ class FlightSoftware:
             if resp.rebaseline:
                 self.rebaseline()
 
+    def _inside(self, dw: np.ndarray, pred: Prediction, avail: np.ndarray) -> bool:
+        """Is the residual ``dw`` (3,) inside the detector's dead zone for this tick's
+        thrusters (the learnt ellipsoid, the fixed one, or absolute plus relative)?"""
+        det = self.detector
+        if det.cfg.relative_dead_zone_sigma is not None and pred.eff_s is not None:
+            return det.in_learnt_ellipsoid(
+                dw, self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat))
+        if det.cfg.relative_dead_zone_across is not None and pred.eff_s is not None:
+            m = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) * np.abs(
+                self.effectiveness.k * pred.eff_s)
+            return det.in_ellipsoid(dw, m)
+        return bool(det.project(dw, pred.dw_thr_abs_rad_s)[2])
+
     def _commit(self, tick: int, dw: np.ndarray, pred: Prediction, avail: np.ndarray,
-                eps: np.ndarray, learn: bool = True) -> Detection | None:
+                eps: np.ndarray, learn: bool = True,
+                raw: np.ndarray | None = None) -> Detection | None:
         """Feed one tick's residual to the detector and the observer's innovation ``eps`` (the
         error before the observer's correction: the adaptive observer's residual is only W5 of
         it on switching ticks) to the effectiveness learning."""
-        inside = None
-        if self.detector.cfg.relative_dead_zone_sigma is not None and pred.eff_s is not None:
-            inside = self.detector.in_learnt_ellipsoid(
-                dw, self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat))
-        elif self.detector.cfg.relative_dead_zone_across is not None and pred.eff_s is not None:
-            m = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) * np.abs(
-                self.effectiveness.k * pred.eff_s)
-            inside = self.detector.in_ellipsoid(dw, m)
+        inside = self._inside(dw, pred, avail)
+        if raw is not None and not inside and self._inside(raw, pred, avail):
+            # The measured rate changed as the model said (the raw residual is inside the
+            # dead zone): what the observer's residual shows is its own redistribution
+            # between rigid rate and flex (after a long burn), not the dynamics.
+            inside = True
         out = self.detector.step(tick, dw, pred.active, avail, pred.dw_thr_abs_rad_s, inside)
         if tick == self._tick:
             self._det_out = out
