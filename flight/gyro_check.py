@@ -26,9 +26,10 @@ signatures no single thruster fault can produce are recognised:
   after tick, so it is never a step;
 * "unexplained": with the thrusters' increments of the tick ``u_j = mu_j k_j eff_j`` given,
   the residual is larger than ``jump_rad_s`` plus what the thrusters' errors can put along it
-  (the envelope's ``sum_j 0.4 |u_j . r/|r|| + 0.1 |u_j|``: scale and timing along, direction
-  across; once learnt, at most 6 times the share of the thrust this run's healthy residuals
-  have been) even after taking out up to the whole increment
+  (the envelope's ``sum_j 0.4 |u_j . r/|r|| + 0.1 |u_j|`` over this tick's and the last
+  tick's thrusters, whose late pulses spill over: scale and timing along, direction across;
+  once learnt, at most 6 times the share of the thrust this run's healthy residuals have
+  been) even after taking out up to the whole increment
   of any one of them (``r + c u_j``, ``0 <= c <= 1``: that thruster failed to fire or is
   weak), so a fails-to-fire is never taken for a step. A jump only one such thruster explains
   is evidence at once (its learning deferred a tick); if that thruster is commanded again and
@@ -49,8 +50,11 @@ signatures no single thruster fault can produce are recognised:
   times the level, frozen while the gyro is suspect or the axis's window holds three large
   differences, never under the floor from
   ``noise_floor_rad_s``): at least 10 of the last 20 above 5 times the level, for
-  ``noise_ticks`` quiet ticks in a row. One step (a thruster starting, a torque) is one large
-  difference (three: a second difference), not ten. The rates are with the constants.
+  ``noise_ticks`` quiet ticks in a row, while the differences look white (lag-one correlation
+  between -0.75 and 0; white noise's differences: -0.5, a ringing the observer does not follow:
+  near +1, or near -1 at the Nyquist frequency). One step (a thruster starting, a torque) is
+  one large difference (three: a second difference), not ten. The rates are with the
+  constants.
 
 While a jump waits for its next tick, and while the output is frozen or noisy, the gyro is
 *suspect*: the flight does not feed the tick to the thruster detector nor to the effectiveness
@@ -80,8 +84,13 @@ _NOISY_AGAIN = 2.0
 # large difference; noise is many), for noise_ticks ticks in a row. Consecutive differences of
 # a second difference are correlated (-2/3), so the binomial does not give the rate: simulated
 # on 2e7 ticks of white noise at the level, 5e-8 alarms per tick and axis; with the noise three
-# times up, named after 27 quiet ticks (median; 99 % within 100), five times up, 16.
+# times up, named after 27 quiet ticks (median; 99 % within 100), five times up, 16 (those
+# two without the whiteness condition, _WHITE_CORR, which delays a few).
 _BIG_WINDOW, _BIG_COUNT, _BIG_RATIO = 20, 10, 5.0
+# Lag-one correlation of the window's differences inside which they are white noise (white:
+# -0.5, with 20 samples outside this band 2.8 % of the time; a slow oscillation: near +1; one
+# at the sampling's Nyquist frequency, the observer ringing with a mode: near -1).
+_WHITE_CORR = (-0.75, 0.0)
 # An axis with this many of its window above keeps its level (white noise at the level: 1 %
 # of the ticks).
 _FREEZE_COUNT = 3
@@ -153,6 +162,7 @@ class GyroCheck:
         self._noisy_ref: np.ndarray | None = None
         self._noisy_now = False
         self._innovation: np.ndarray | None = None
+        self._u_prev: np.ndarray | None = None
         self._share = 0.0
         self._share_n = 0
         self._run = False
@@ -160,6 +170,7 @@ class GyroCheck:
         self._r_quiet: np.ndarray | None = None
         self._big: list[np.ndarray] = []
         self._recent: list[np.ndarray] = []
+        self._diffs: list[np.ndarray] = []
         self._slow = np.zeros(3)
         self._quiet = 0
         self._over = 0
@@ -179,9 +190,24 @@ class GyroCheck:
         self._r_quiet = None
         self._big = []
         self._recent = []
+        self._diffs = []
         self._slow = np.zeros(3)
         self._quiet = 0
         self._over = 0
+
+    def _white(self) -> np.ndarray:
+        """Per axis: do the window's differences look like white noise's? The differences of
+        white noise have a lag-one correlation of -0.5; an oscillation the observer does not
+        follow (a flex mode off its frequency) gives smooth differences, correlation near +1,
+        one at the Nyquist frequency near -1. White inside the band _WHITE_CORR."""
+        d = np.asarray(self._diffs)
+        if len(d) < 3:
+            return np.zeros(3, dtype=bool)
+        a, b = d[1:], d[:-1]
+        num = (a * b).sum(axis=0)
+        den = np.sqrt((a * a).sum(axis=0) * (b * b).sum(axis=0))
+        corr = np.divide(num, den, out=np.zeros(3), where=den > 0.0)
+        return (corr > _WHITE_CORR[0]) & (corr < _WHITE_CORR[1])
 
     def noise_rad_s(self) -> float:
         """The sensor noise the quiet ticks show now, a scale in rad/s: the square root of a
@@ -212,6 +238,7 @@ class GyroCheck:
              innovation: np.ndarray | None = None) -> GyroVerdict:
         self._innovation = None if innovation is None else np.asarray(innovation, float)
         v = self._step(y, predicted_change, thrust_abs, increments)
+        self._u_prev = None if increments is None else np.array(increments, dtype=float)
         if self._noisy_now and not v.suspect:
             # A gyro known to be noisy: no tick of it is thruster evidence.
             self._pending = None
@@ -234,7 +261,10 @@ class GyroCheck:
             ok = norm <= base + self.explain_factor * float(thrust_abs)
             return -1 if ok else None
         u = np.asarray(increments, dtype=float)
-        if norm <= self._slack(r, u, base):
+        # The errors of the last tick's thrusters spill into this one (a late or long pulse).
+        u_err = u if self._u_prev is None or len(self._u_prev) != len(u) else np.vstack(
+            [u, self._u_prev])
+        if norm <= self._slack(r, u_err, base):
             return -1
         uu = np.einsum("ij,ij->i", u, u)
         best, best_rest = None, np.inf
@@ -242,7 +272,7 @@ class GyroCheck:
             c = min(max(-float(u[j] @ r) / float(uu[j]), 0.0), 1.0)
             rest = r + c * u[j]
             nr = float(np.linalg.norm(rest))
-            if nr <= self._slack(rest, u, base) and nr < best_rest:
+            if nr <= self._slack(rest, u_err, base) and nr < best_rest:
                 best, best_rest = int(j), nr
         return best
 
@@ -414,9 +444,10 @@ class GyroCheck:
             ref = np.maximum(self._slow / (1.0 if warm else _SLOW_BIAS), self.noise_floor2)
             self._big = (self._big + [r2 > _BIG_RATIO * ref])[-_BIG_WINDOW:]
             self._recent = (self._recent + [r2])[-_BIG_WINDOW:]
+            self._diffs = (self._diffs + [dr])[-_BIG_WINDOW:]
             count = np.sum(self._big, axis=0)
             noisy = (not warm and len(self._big) == _BIG_WINDOW
-                     and bool((count >= _BIG_COUNT).any()))
+                     and bool(((count >= _BIG_COUNT) & self._white()).any()))
             if self._noisy_ref is not None:
                 # After a noise increase was named: suspect while the axes' median level is
                 # still above _NOISY_AGAIN times the level it was named against.
