@@ -26,8 +26,9 @@ signatures no single thruster fault can produce are recognised:
   after tick, so it is never a step;
 * "unexplained": with the thrusters' increments of the tick ``u_j = mu_j k_j eff_j`` given,
   the residual is larger than ``jump_rad_s`` plus what the thrusters' errors can put along it
-  (the envelope's ``sum_j 0.4 |u_j . r/|r|| + 0.1 |u_j|`` over this tick's and the last
-  tick's thrusters, whose late pulses spill over: scale and timing along, direction across;
+  (the envelope's ``sum_j 0.4 |u_j . r/|r|| + 0.1 |u_j|`` over this tick's thrusters, or on a
+  tick without thrust the last tick's, whose late pulses spill over: scale and timing along,
+  direction across;
   once learnt, at most 6 times the share of the thrust this run's healthy residuals have
   been) even after taking out up to the whole increment
   of any one of them (``r + c u_j``, ``0 <= c <= 1``: that thruster failed to fire or is
@@ -261,9 +262,11 @@ class GyroCheck:
             ok = norm <= base + self.explain_factor * float(thrust_abs)
             return -1 if ok else None
         u = np.asarray(increments, dtype=float)
-        # The errors of the last tick's thrusters spill into this one (a late or long pulse).
-        u_err = u if self._u_prev is None or len(self._u_prev) != len(u) else np.vstack(
-            [u, self._u_prev])
+        # On a tick without thrust the errors of the last tick's thrusters spill into it (a late
+        # or long pulse's tail).
+        u_err = u
+        if self._u_prev is not None and len(self._u_prev) == len(u) and not u.any():
+            u_err = self._u_prev
         if norm <= self._slack(r, u_err, base):
             return -1
         uu = np.einsum("ij,ij->i", u, u)

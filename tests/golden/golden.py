@@ -13,8 +13,9 @@ and for the five whose gyro-check verdicts moved when a jump after a jump stoppe
 gyro check's later changes moved without moving a detection (S000-stuck, S002-100, S002-50,
 S004-polar), and when the detector stopped taking the observer's residual where the measured
 rate changed as the model said and the gyro check's jump level went to 5 dead zones
-(REC-nofire, REC-stuck, S000-nofire, S002-50 unchanged detections; S002-15 detected at 701.6 s
-then, and at 704.4 s again once the last tick's thrusters counted in the gyro check's slack);
+(REC-nofire, REC-stuck, S000-nofire, S002-50 unchanged detections; S002-15 detects at 701.6 s,
+was 704.4), and again when the last tick's thrusters came to count in the gyro check's slack on
+ticks without thrust (S000-nofire, S002-50, S002-15: the same detections);
 ``test_golden.py`` re-runs the scenarios and compares bit for bit.
 A change that is meant to change the numbers regenerates them on purpose::
 
