@@ -210,15 +210,17 @@ class GyroCheck:
         corr = np.divide(num, den, out=np.zeros(3), where=den > 0.0)
         return (corr > _WHITE_CORR[0]) & (corr < _WHITE_CORR[1])
 
-    def noise_rad_s(self) -> float:
-        """The sensor noise the quiet ticks show now, a scale in rad/s: the square root of a
-        third of the sum over the axes of the level of the squared differences of consecutive
-        quiet ticks' noise input (the level from the median of the last ``_BIG_WINDOW``: a
-        chi-square(1) median is 0.455 of the mean). 0 until the window is full."""
-        if len(self._recent) < _BIG_WINDOW:
-            return 0.0
-        level = np.median(np.asarray(self._recent), axis=0) / 0.455
-        return float(np.sqrt(level.sum() / 3.0))
+    def noise_ratio(self) -> float:
+        """How many times noisier the quiet ticks are now than their long-run level: the
+        square root of the ratio of the sums over the axes of the level of the squared
+        differences of consecutive quiet ticks' noise input, now (from the median of the last
+        ``_BIG_WINDOW``: a chi-square(1) median is 0.455 of the mean) and long-run (the level
+        the noise test learns, never under the floor). 1 until both are known."""
+        if len(self._recent) < _BIG_WINDOW or self._quiet <= self.warmup_ticks:
+            return 1.0
+        now = np.median(np.asarray(self._recent), axis=0) / 0.455
+        ref = np.maximum(self._slow / _SLOW_BIAS, self.noise_floor2)
+        return float(np.sqrt(now.sum() / ref.sum()))
 
     def skip(self, y: np.ndarray) -> None:
         """A tick whose data is not evidence (sample missing or propagated, command not

@@ -274,7 +274,7 @@ class FlightSoftware:
                 inc = self.arrays.mu_B_rad_s2 * (self.effectiveness.k * pred.eff_s)[:, None]
             verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s, inc,
                                            self._obs.innovation_B_rad_s)
-            self.detector.noise_rad_s = self.gyro_check.noise_rad_s()
+            self.detector.noise_ratio = self.gyro_check.noise_ratio()
             dw = w_hat - self._omega_pred
             det = None
             if verdict.fault is not None:
