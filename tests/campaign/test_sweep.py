@@ -40,7 +40,11 @@ def test_replay_at_the_configured_settings_finds_the_detectors_own_detection(
             # The replay sees which residual crossed (the commanded one for fails to fire and
             # degraded alike); the detector names a degraded thruster from its learnt fraction.
             side = {"degraded": "fail_to_fire"}.get(d["type"], d["type"])
-            assert (round(n * h, 6), kind) == (d["t_s"], side)
+            # A tick the gyro check held (a jump it judges on the next tick) is committed on
+            # the next tick together with that tick's own residual, and the records keep one
+            # xi per tick (the newer): the replay misses the held one and may cross a tick late.
+            assert kind == side
+            assert round(n * h, 6) in (d["t_s"], round(d["t_s"] + h, 6))
             assert names[i] in ([d["thruster"]] if isinstance(d["thruster"], str)
                                 else d["thruster"])
             checked += 1
