@@ -241,19 +241,17 @@ def test_realtime_plant_holds_the_last_command_through_a_gap(tmp_path):
     done = threading.Event()
 
     def fake_flight():
-        t0, k, next_cmd = time.monotonic(), 0, 0.0
+        # Answers each gyro sample at once, as the flight does, except samples 3 and 4 (the
+        # gap: two ticks without a command). Keyed on the samples, not on this thread's
+        # clock, so a loaded machine cannot stretch the gap to the safe-state limit (4).
+        t0, last = time.monotonic(), -1
         while not done.is_set() and time.monotonic() - t0 < 2.0:
             flight.send(Heartbeat(Node.FLIGHT, NodeState.RUN))
-            seq = None
             for msg, _ in flight.poll(0.02):
-                if isinstance(msg, Gyro):
-                    seq = msg.sample_seq
-            t = time.monotonic() - t0
-            if seq is not None and t >= next_cmd:
-                if not 0.6 <= t < 1.1:  # the gap: about two ticks without a command
-                    flight.send(ThrCmd(k, (20,) * 6, 1, seq))
-                k += 1
-                next_cmd += 0.2
+                if isinstance(msg, Gyro) and msg.sample_seq > last:
+                    last = msg.sample_seq
+                    if last not in (3, 4):
+                        flight.send(ThrCmd(last, (20,) * 6, 1, last))
 
     th = threading.Thread(target=fake_flight)
     th.start()
