@@ -54,6 +54,17 @@ _Y_ORBIT = np.array([0.0, 1.0, 0.0])  # local vertical in the orbit frame (seed 
 # explain) is a gyro-error candidate (flight.gyro_check), unless the vehicle sets its own.
 JUMP_DZ = 5.0
 _ISOLATION_TICKS = 10
+# A stuck-on detection is checked against the thrusters whose directions are within this
+# angle of the named one and whose stuck-on evidence is at least _ALIKE_SHARE of its
+# threshold: the one the measured rate change (the gyro's raw residual, before the observer)
+# points at most is named. chosen: orel's neighbours are 4-29 deg apart; the adaptive
+# observer takes part of a stuck thrust in as flex and turns its residual by that much.
+_ALIKE_DEG = 35.0
+_ALIKE_SHARE = 0.5
+# ... only over at least this many ticks of evidence: the raw residual carries the flex the
+# observer removes, and only a sum over a few ticks averages it out (iss_rs crosses on one
+# tick, where the raw direction named a neighbour in 3 of 23 stuck-on runs it got right).
+_ALIKE_MIN_TICKS = 3
 # A hypothesis replaces the detector's when its residual sum of squares is this many times
 # smaller. chosen: a factor that noise over 10 ticks does not reach by chance.
 _ISOLATION_RATIO = 2.0
@@ -164,7 +175,8 @@ class FlightSoftware:
                                     hold_rad_s=dc.gyro_hold_rad_s)
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
-        self._window: list[tuple[np.ndarray, np.ndarray, bool]] = []
+        # (observer residual, burns, outside the dead zone, raw residual) of the last ticks
+        self._window: list[tuple[np.ndarray, np.ndarray, bool, np.ndarray]] = []
         # (detection held back, the pair left out of the allocation, ticks left) while probing
         self._probe: tuple[Detection | None, tuple[int, int], int] | None = None
         self._probed: dict[tuple[int, int], int] = {}
@@ -356,7 +368,8 @@ class FlightSoftware:
             self._det_out = out
         if not out.held and pred.eff_s is not None:
             self._window.append((np.asarray(dw, dtype=float), np.asarray(pred.eff_s, float),
-                                 not out.dead_zone))
+                                 not out.dead_zone,
+                                 np.asarray(dw if raw is None else raw, dtype=float)))
             del self._window[:-_ISOLATION_TICKS]
             if self._probe is not None:
                 held_det, pair, left = self._probe
@@ -373,7 +386,7 @@ class FlightSoftware:
             elif out.detection is None and self.detector.latched is None:
                 self._suspect(tick, avail)
             if out.detection is not None:
-                det = self._isolate_opposite(out.detection, avail)
+                det = self._isolate_opposite(self._isolate_alike(out.detection, avail), avail)
                 self.detector.latched = det if det is not None else out.detection
                 return det
         if out.detection is None and not out.held and pred.eff_s is not None:
@@ -408,6 +421,39 @@ class FlightSoftware:
                 self._probe = (None, (int(i), int(j)), _PROBE_TICKS)
                 return
 
+    def _evidence_window(self) -> list[tuple[np.ndarray, np.ndarray, bool, np.ndarray]]:
+        """The window's ticks from the first one outside the dead zone on: the ticks before the
+        fault say nothing of it."""
+        first = next((k for k, w in enumerate(self._window) if w[2]), 0)
+        return self._window[first:]
+
+    def _isolate_alike(self, det: Detection, avail: np.ndarray) -> Detection:
+        """A stuck-on crossing names the thruster the observer's residual points at most; its
+        neighbours in direction (within ``_ALIKE_DEG``, their own stuck-on evidence at least
+        ``_ALIKE_SHARE`` of the threshold) are judged again by the gyro's raw residual over
+        the same ticks (sum of the residual vectors, projected on each unit direction), and
+        the best aligned is named, when there are ``_ALIKE_MIN_TICKS`` ticks or more. The
+        observer's residual says whether; the raw one says which (orel's adaptive observer
+        takes part of a stuck thrust in as flex)."""
+        if det.kind != STUCK_ON or not self._window:
+            return det
+        d = self.detector
+        i = det.thruster
+        cos = math.cos(math.radians(_ALIKE_DEG))
+        cands = [j for j in np.flatnonzero(avail & (d.e_B @ d.e_B[i] >= cos))
+                 if d.rho_off[j] >= _ALIKE_SHARE * d.thresholds_off[j]]
+        win = self._evidence_window()
+        if len(cands) < 2 or len(win) < _ALIKE_MIN_TICKS:
+            return det
+        total = np.sum([w[3] for w in win], axis=0)
+        best = int(max(cands, key=lambda j: (float(total @ d.e_B[j]), j == i)))
+        if best == i or best in det.group:
+            return det
+        group = tuple(g for g in d.groups[best] if avail[g])
+        return replace(det, thruster=best, group=group,
+                       names=tuple(self.arrays.names[g] for g in group),
+                       rho=float(d.rho_off[best]), source="isolation")
+
     def _isolate_opposite(self, det: Detection, avail: np.ndarray,
                           decide: bool = False) -> Detection | None:
         """A failed (or degraded) thruster and a stuck-on opposite one move both residuals
@@ -423,10 +469,9 @@ class FlightSoftware:
         k = self.effectiveness.k
         # From the first tick outside the dead zone on: the ticks before the fault say nothing
         # of it (a leak fitted over them would be judged by ticks it did not exist on).
-        first = next((k for k, (_, _, out) in enumerate(self._window) if out), 0)
-        win = self._window[first:]
-        dw = np.array([w for w, _, _ in win])
-        eff = np.array([e for _, e, _ in win])
+        win = self._evidence_window()
+        dw = np.array([w[0] for w in win])
+        eff = np.array([w[1] for w in win])
         closed = self.h - np.clip(eff, 0.0, self.h)
         if det.kind == STUCK_ON:
             j = det.thruster

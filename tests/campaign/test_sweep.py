@@ -49,7 +49,8 @@ def test_replay_at_the_configured_settings_finds_the_detectors_own_detection(
                                 else d["thruster"])
             checked += 1
         elif any(d.get("source") == "isolation" for d in row["detections"]):
-            # Named by the flight's isolation of opposite thrusters (after a fit or a probe):
+            # Named by the flight's isolation (opposite thrusters after a fit or a probe, or a near
+            # neighbour by the raw residual):
             # the replay has the crossing it started from, on or before it.
             d = row["detections"][0]
             assert firsts[1] is not None and round(firsts[1][0] * h, 6) <= d["t_s"]
@@ -60,8 +61,8 @@ def test_replay_at_the_configured_settings_finds_the_detectors_own_detection(
         assert ticks == sorted(ticks)
     assert checked >= 8
     pts = {p["threshold_off"]: p for p in doc["points"]}
-    # The replay sees the detector's crossings, not the isolation of opposite thrusters that
-    # may rename them: the counts agree but for the runs the isolation named.
+    # The replay sees the detector's crossings, not the isolation (opposite thrusters, near
+    # neighbours) that may rename them: the counts agree but for the runs the isolation named.
     iso = sum(any(d.get("source") == "isolation" for d in r["detections"]) for r in rows)
     assert abs(pts[t0]["detected"] - sum(r["verdict"] == "detected" for r in rows)) <= iso
     assert (tmp_path / "sweep.png").exists()
