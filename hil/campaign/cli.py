@@ -77,6 +77,11 @@ def _print_summary(doc: dict[str, Any]) -> None:
                 print(f"  {veh} {cls}: missed {_fmt_rate(st['missed_detection'])}, "
                       f"unobservable {st['unobservable']}, latency p50/p90/max "
                       f"{_fmt_lat(st['latency_s'])}")
+                if "commanded_goal" in st:
+                    g = st["commanded_goal"]
+                    print(f"    commanded on {g['min_ticks']}+ ticks after the fault: detected "
+                          f"{_fmt_rate(g['detection'])}, from the first command p50/p90/max "
+                          f"{_fmt_lat(g['latency_from_command_s'])}")
     if doc["failures"]:
         print(f"  failed runs: {len(doc['failures'])} (see report.md)")
 

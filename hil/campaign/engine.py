@@ -87,8 +87,9 @@ class _Collector:
             self.available.append(np.asarray(out.available, dtype=bool).copy())
 
 
-def _commanded_after(spec: RunSpec, col: _Collector) -> bool | None:
-    """Whether the faulty thruster had a command acting after the fault time."""
+def _commands_after(spec: RunSpec, col: _Collector) -> tuple[int, float | None] | None:
+    """Ticks on which the faulty thruster had a command acting after the fault time, and the
+    plant time that first such command started to act (None: the fault needs no command)."""
     f = spec.fault
     if not needs_command(f) or not col.on_ms:
         return None
@@ -96,10 +97,13 @@ def _commanded_after(spec: RunSpec, col: _Collector) -> bool | None:
     i = names.index(f["thruster"])
     h = float(spec.vehicle["timing"]["tick_s"])
     lat = float((spec.scenario.get("plant") or {}).get("command_latency_ms", 0.0)) / 1000.0
+    ticks, first = 0, None
     for n, on in enumerate(col.on_ms):
         if on[i] > 0 and n * h + lat + on[i] / 1000.0 > f["t_s"] + 1e-9:
-            return True
-    return False
+            ticks += 1
+            if first is None:
+                first = max(n * h + lat, f["t_s"])
+    return ticks, first
 
 
 def run_task(task: Task) -> dict[str, Any]:
@@ -116,7 +120,10 @@ def run_task(task: Task) -> dict[str, Any]:
         path = write_run(spec, Path(tmp), absolute=True)
         sc = load_scenario(path)
         res = simulate(sc, on_tick=col)
-        row = classify(spec, res.summary, commanded_after=_commanded_after(spec, col))
+        cmds = _commands_after(spec, col)
+        row = classify(spec, res.summary, commanded_after=None if cmds is None else cmds[0] > 0,
+                       commanded_ticks=None if cmds is None else cmds[0],
+                       first_command_s=None if cmds is None else cmds[1])
     except Exception as exc:  # noqa: BLE001 - a run that raises is a row, not a crash
         tb = traceback.extract_tb(exc.__traceback__)
         where = f"{Path(tb[-1].filename).name}:{tb[-1].lineno}" if tb else "?"

@@ -173,6 +173,19 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
                          f"{_fmt_lat(st['latency_s'])} | "
                          f"{_fmt_rate(st['false_alarm_before_fault'])} |")
             L.append("")
+            goals = [k for k in fcls if "commanded_goal" in vs[k]]
+            if goals:
+                n = vs[goals[0]]["commanded_goal"]["min_ticks"]
+                L += [f"Faults seen only when their thruster fires, runs whose thruster was "
+                      f"commanded on {n} ticks or more after the fault (the FDIR goal's "
+                      f"population):", "",
+                      "| fault class | detection rate [95 % CI] | latency from the first "
+                      "command s p50 / p90 / max |", "|---|---|---|"]
+                for k in goals:
+                    g = vs[k]["commanded_goal"]
+                    L.append(f"| {k} | {_fmt_rate(g['detection'])} | "
+                             f"{_fmt_lat(g['latency_from_command_s'])} |")
+                L.append("")
             conf = stats["confusion"].get(veh, {}).get("by_kind", [])
             if conf:
                 L += ["Isolation by kind (injected kind, what the first detection after the "

@@ -22,7 +22,11 @@ fault-free runs), each with its exact Clopper-Pearson 95 % interval:
 * false-alarm rate: fault-free runs with at least one detection / completed fault-free runs;
 * missed-detection rate: observable fault runs without a correct detection / observable fault
   runs (unobservable runs are counted apart and said so);
-* latency (fault time to the first correct detection): p50, p90, max over detected runs.
+* latency (fault time to the first correct detection): p50, p90, max over detected runs;
+* for faults seen only when their thruster fires (fails to fire, degraded), also the rate and
+  latency the FDIR goal states (issue 12): among runs whose thruster was commanded on at least
+  ``GOAL_COMMANDED_TICKS`` ticks after the fault, the detection rate, and the latency from the
+  first command acting after the fault (``latency_from_command_s``), p50 / p90 / max.
 
 The confusion matrix counts, for fault runs, the injected (thruster, kind) against what the
 first detection after the fault named: a thruster, a group (its own column, "one of {...}"),
@@ -41,6 +45,9 @@ from hil.verdict import judge_summary
 VERDICTS = ("pass", "false_alarm", "detected", "unobservable", "misidentified", "missed",
             "unjudged", "error", "incomplete")
 FAILED = ("error", "incomplete")
+# The fails-to-fire goal counts runs whose thruster was commanded on this many ticks or more
+# after the fault (fewer firings may carry too little evidence).
+GOAL_COMMANDED_TICKS = 3
 _EPS = 1e-9
 
 
@@ -97,8 +104,11 @@ def _incomplete(spec: Any, s: dict[str, Any]) -> str | None:
 
 
 def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool | None = None,
-             error: str | None = None) -> dict[str, Any]:
-    """The row of one run (module doc); ``spec`` is its ``RunSpec``."""
+             error: str | None = None, commanded_ticks: int | None = None,
+             first_command_s: float | None = None) -> dict[str, Any]:
+    """The row of one run (module doc); ``spec`` is its ``RunSpec``. ``commanded_ticks`` and
+    ``first_command_s``: ticks with the faulty thruster commanded after the fault and the time
+    the first of them acted (faults seen only when their thruster fires)."""
     f = spec.fault
     row: dict[str, Any] = {
         "run": spec.run, "name": spec.name, "vehicle": spec.vehicle["name"],
@@ -106,7 +116,9 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
         "fault": f, "params": spec.params, "verdict": None, "reason": None, "error": error,
         "detections": [], "false_alarms": 0, "false_alarms_before_fault": 0,
         "latency_s": None, "detected_as": None, "named": None,
-        "commanded_after_fault": commanded_after, "max_attitude_error_deg": None,
+        "commanded_after_fault": commanded_after, "commanded_ticks_after_fault": commanded_ticks,
+        "first_command_after_fault_s": first_command_s, "latency_from_command_s": None,
+        "max_attitude_error_deg": None,
         "max_rate_error_deg_s": None, "fuel_kg": None, "sim_s": None,
     }
     if error is not None or summary is None:
@@ -139,6 +151,8 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
         d = correct[0]
         row.update(verdict="detected", latency_s=d["latency_s"],
                    detected_as="exact" if len(_names(d["thruster"])) == 1 else "group")
+        if first_command_s is not None:
+            row["latency_from_command_s"] = round(d["t_s"] - first_command_s, 6)
     elif not judged:
         row["verdict"] = "unjudged"
         row["reason"] = "the summary does not judge this fault (no thruster)"
@@ -197,6 +211,15 @@ def campaign_statistics(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 st["latency_s"] = _pct([r["latency_s"] for r in det])
                 st["false_alarm_before_fault"] = _rate(
                     sum(r["false_alarms_before_fault"] > 0 for r in done), len(done))
+                goal = [r for r in obs if (r.get("commanded_ticks_after_fault") or 0)
+                        >= GOAL_COMMANDED_TICKS]
+                if any(r.get("commanded_ticks_after_fault") is not None for r in obs):
+                    gdet = [r for r in goal if r["verdict"] == "detected"]
+                    st["commanded_goal"] = {
+                        "min_ticks": GOAL_COMMANDED_TICKS,
+                        "detection": _rate(len(gdet), len(goal)),
+                        "latency_from_command_s": _pct([r["latency_from_command_s"]
+                                                        for r in gdet])}
             vstats[cls] = st
         fault_rows = [r for rs in classes.values() for r in rs
                       if r["fault_class"] != "none" and r["verdict"] not in FAILED]

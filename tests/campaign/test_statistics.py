@@ -152,3 +152,49 @@ def test_incomplete_summary_is_a_failure_never_a_pass(change: dict, reason: str)
     r = classify(SPEC, _summary(**change), commanded_after=True)
     assert r["verdict"] == "incomplete"
     assert r["reason"].startswith(reason)
+
+
+def test_the_fails_to_fire_goal_counts_runs_commanded_three_ticks_and_times_from_the_command(
+        ) -> None:
+    """The goal's population and latency: runs commanded on 3+ ticks after the fault, the
+    latency from the first command acting (the row's own figure, checked by hand here)."""
+    det = {"t_s": 6.0, "thruster": "A", "type": "fail_to_fire", "latency_s": 2.0,
+           "correct": True}
+    r = classify(SPEC, _summary(detections=[det], missed_faults=[]), commanded_after=True,
+                 commanded_ticks=5, first_command_s=5.2)
+    assert r["latency_from_command_s"] == pytest.approx(0.8)
+    assert r["commanded_ticks_after_fault"] == 5
+    rows = [dict(r, run=0)]
+    late = dict(r, run=1, latency_from_command_s=2.5)
+    few = dict(r, run=2, commanded_ticks_after_fault=2, latency_from_command_s=9.0)
+    miss = classify(SPEC, _summary(), commanded_after=True, commanded_ticks=4,
+                    first_command_s=4.6)
+    rows += [late, few, dict(miss, run=3)]
+    g = campaign_statistics(rows)["by_vehicle"]["v"]["fail_to_fire"]["commanded_goal"]
+    assert g["min_ticks"] == 3
+    assert (g["detection"]["k"], g["detection"]["n"]) == (2, 3)  # run 2 is not in it
+    assert g["latency_from_command_s"]["max"] == 2.5
+    # Rows of an older campaign (no command counts) carry no goal figures.
+    old = [{k: v for k, v in x.items() if k != "commanded_ticks_after_fault"} for x in rows]
+    assert "commanded_goal" not in campaign_statistics(old)["by_vehicle"]["v"]["fail_to_fire"]
+
+
+def test_commands_after_the_fault_are_counted_from_the_ticks_on_times() -> None:
+    """The engine's count: a command acts from ``n h + latency`` for its on-time; it counts
+    when it still acts after the fault (hand count over six ticks)."""
+    import numpy as np
+
+    from hil.campaign.engine import _Collector, _commands_after
+
+    spec = replace(SPEC, scenario={"duration_s": 1.0, "plant": {"command_latency_ms": 10.0}},
+                   fault={"kind": "fail_to_fire", "thruster": "B", "t_s": 0.45})
+    col = _Collector(record=False)
+    # B (index 1) on 100 ms at tick 1 (acts 0.21-0.31: before the fault), 60 ms at tick 2
+    # (0.41-0.47: across it), nothing at tick 3, 20 ms at ticks 4 and 5.
+    for on_b in (0, 100, 60, 0, 20, 20):
+        col.on_ms.append(np.array([200, on_b], dtype=np.int16))
+    ticks, first = _commands_after(spec, col)
+    assert ticks == 3
+    assert first == pytest.approx(0.45)  # the tick-2 pulse still burns at the fault time
+    assert _commands_after(replace(spec, fault={"kind": "stuck_on", "thruster": "B",
+                                                "t_s": 0.45}), col) is None
