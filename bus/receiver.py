@@ -9,14 +9,21 @@
    frames). A jump of at most ``max_delta_counter`` is AUTOSAR's "ok, some lost": the frame
    itself is intact and is used (counted, with the lost count). A larger jump is not used
    (an old frame replayed looks like a large jump). The counter state follows every frame
-   whose CRC is good, so the receiver resynchronises on the next frame;
+   whose CRC is good, so the receiver resynchronises on the next frame. For the messages the
+   node authenticates (``Receiver.authenticated``, set by the port with its SecOC key) the
+   counter is counted but does not gate: anyone on the bus can send the counter that makes
+   the genuine frame look repeated, and the authenticator's freshness does the counter's job;
 5. ``stale``: ``now_s - frame.timestamp_s`` above the frame's catalog deadline. Both times
    must be in the same clock (the transport's, see ``bus.transport.Port.clock``);
 6. ``out_of_range``: a signal outside its catalog limits;
 7. frames of a set (THR_CMD, GYRO, FAULT_CMD) go to a ``SetAssembler``: the verdict is
    ``ok`` with ``message`` None until the set is complete. A set that is superseded by a
    newer key, has a frame twice, disagrees inside, or is older than its deadline is dropped
-   and counted as ``incomplete_set`` (as a verdict from ``expire`` and as an event).
+   and counted as ``incomplete_set`` (as a verdict from ``expire`` and as an event). For an
+   authenticated set, a frame that differs from one already held starts a variant of the set
+   instead, and sets of other keys are not superseded (at most ``VARIANTS`` variants of at
+   most ``VARIANT_KEYS`` keys): each complete variant is handed on (``Verdict.messages``) and
+   the authenticator keeps the one its authenticator verifies.
 
 Nothing raises out of ``classify``: a bug in a check of ours becomes ``internal`` (counted).
 Nothing bad is returned as a message: ``Verdict.message`` is set only when usable.
@@ -54,6 +61,11 @@ CLASSES = (
 )
 
 
+# Authenticated sets: variants of one key, and keys, held at once (see the module doc).
+VARIANTS = 4
+VARIANT_KEYS = 4
+
+
 @dataclass(frozen=True)
 class Verdict:
     """What the receiver made of one frame (or, for ``incomplete_set``, of a set).
@@ -70,6 +82,7 @@ class Verdict:
     lost: int = 0
     detail: str = ""
     rx_time_s: float | None = None
+    messages: tuple[Message, ...] = ()  # further complete variants of an authenticated set
 
 
 @dataclass
@@ -96,6 +109,8 @@ class SetAssembler:
         self.pending: _PendingSet | None = None
         self.incomplete = 0
         self.completed = 0
+        # Authenticated set (Receiver.authenticate): variants by key, oldest key first.
+        self.variants: dict[int, list[_PendingSet]] | None = None
 
     def _drop(self, why: str, rx_s: float | None) -> Verdict:
         self.incomplete += 1
@@ -110,10 +125,81 @@ class SetAssembler:
             rx_time_s=rx_s,
         )
 
+    def _drop_variant(self, p: _PendingSet, why: str, rx_s: float | None) -> Verdict:
+        self.incomplete += 1
+        return Verdict(
+            "incomplete_set",
+            self.set_name,
+            detail=f"{self.set_name}: expected frames {', '.join(self.names)}, got "
+            f"{', '.join(sorted(p.signals)) or 'none'} ({why})",
+            rx_time_s=rx_s,
+        )
+
+    def _add_variant(
+        self, f: FrameDef, phys: dict[str, float], rx_s: float
+    ) -> tuple[list[Message], list[Verdict]]:
+        """An authenticated set: the frame joins every variant of its key that lacks it, and
+        starts a new variant beside each that holds a different one (module doc)."""
+        assert self.variants is not None
+        dropped: list[Verdict] = []
+        key = int(phys[f.key_signal]) & 0xFF
+        if key not in self.variants:
+            if len(self.variants) >= VARIANT_KEYS:
+                oldest = next(iter(self.variants))
+                for p in self.variants.pop(oldest):
+                    dropped.append(self._drop_variant(p, "pushed out by newer keys", rx_s))
+            self.variants[key] = []
+        sets = self.variants[key]
+        forks = []
+        for p in sets:
+            have = p.signals.get(f.name)
+            if have is None:
+                p.signals[f.name] = phys
+            elif have != phys:
+                forks.append(_PendingSet(key, rx_s, {**p.signals, f.name: phys}))
+        if not sets:
+            forks.append(_PendingSet(key, rx_s, {f.name: phys}))
+        for q in forks:
+            if q.signals not in [p.signals for p in sets]:
+                sets.append(q)
+        while len(sets) > VARIANTS:
+            dropped.append(self._drop_variant(sets.pop(0), "variants of the key", rx_s))
+        out: list[Message] = []
+        cls = MESSAGE_TYPES[self.set_name]
+        check = getattr(cls, "set_problem", None)
+        for p in [p for p in sets if len(p.signals) == len(self.frames)]:
+            sets.remove(p)
+            problem = check(p.signals) if check else None
+            if problem:
+                dropped.append(self._drop_variant(p, problem, rx_s))
+                continue
+            self.completed += 1
+            out.append(cls.from_signals(p.signals))
+        if not sets:
+            del self.variants[key]
+        return out, dropped
+
     def add(
         self, f: FrameDef, phys: dict[str, float], rx_s: float
     ) -> tuple[Message | None, list[Verdict]]:
-        """Add one valid frame. Returns (complete message or None, incomplete_set verdicts)."""
+        """Add one valid frame. Returns (complete message or None, incomplete_set verdicts).
+        An authenticated set (``variants``) may complete several variants at once: use
+        ``add_all``."""
+        msgs, dropped = self.add_all(f, phys, rx_s)
+        return (msgs[0] if msgs else None), dropped
+
+    def add_all(
+        self, f: FrameDef, phys: dict[str, float], rx_s: float
+    ) -> tuple[list[Message], list[Verdict]]:
+        """Add one valid frame. Returns (complete messages, incomplete_set verdicts)."""
+        if self.variants is not None:
+            return self._add_variant(f, phys, rx_s)
+        msg, dropped = self._add_one(f, phys, rx_s)
+        return ([] if msg is None else [msg]), dropped
+
+    def _add_one(
+        self, f: FrameDef, phys: dict[str, float], rx_s: float
+    ) -> tuple[Message | None, list[Verdict]]:
         dropped: list[Verdict] = []
         key_full = int(phys[f.key_signal])
         key = key_full & 0xFF
@@ -139,6 +225,15 @@ class SetAssembler:
         return cls.from_signals(p.signals), dropped
 
     def expire(self, now_s: float) -> list[Verdict]:
+        if self.variants is not None:
+            out = []
+            for key, sets in list(self.variants.items()):
+                for p in [p for p in sets if now_s - p.first_rx_s > self.deadline_s]:
+                    sets.remove(p)
+                    out.append(self._drop_variant(p, f"older than {self.deadline_s} s", now_s))
+                if not sets:
+                    del self.variants[key]
+            return out
         p = self.pending
         if p is not None and now_s - p.first_rx_s > self.deadline_s:
             return [self._drop(f"older than {self.deadline_s} s", now_s)]
@@ -156,13 +251,13 @@ class ThrCmdAssembler(SetAssembler):
         super().__init__("THR_CMD", catalog, deadline_s)
         self.ready: dict[int, Message] = {}
 
-    def add(self, f, phys, rx_s):
-        msg, dropped = super().add(f, phys, rx_s)
-        if msg is not None:
+    def add_all(self, f, phys, rx_s):
+        msgs, dropped = super().add_all(f, phys, rx_s)
+        for msg in msgs if self.variants is None else ():  # variants: the authenticator picks
             self.ready[msg.tick] = msg
             for t in [t for t in self.ready if t < msg.tick - 4]:
                 del self.ready[t]
-        return msg, dropped
+        return msgs, dropped
 
     def take(self, tick: int):
         cmd = self.ready.pop(tick, None)
@@ -193,11 +288,23 @@ class Receiver:
         self.events: list[Verdict] = []
         self.max_events = max_events
         self._last_counter: dict[int, int] = {}
+        # Messages this node authenticates (SecOC): their alive counter does not gate and
+        # their sets keep variants (module doc). Set with ``authenticate``.
+        self.authenticated: frozenset[str] = frozenset()
         self.thr_cmd = ThrCmdAssembler(catalog)
         self.assemblers: dict[str, SetAssembler] = {"THR_CMD": self.thr_cmd}
         for f in catalog.frames:
             if f.set_name and f.set_name not in self.assemblers:
                 self.assemblers[f.set_name] = SetAssembler(f.set_name, catalog)
+
+    def authenticate(self, names: frozenset[str] | set[str]) -> None:
+        """The logical messages (set names, and their authenticators' names) this node
+        authenticates; empty: none (the plain E2E checks)."""
+        self.authenticated = frozenset(names)
+        for name, a in self.assemblers.items():
+            a.variants = ({} if a.variants is None else a.variants) \
+                if name in self.authenticated else None
+            a.pending = None
 
     def _record(self, v: Verdict) -> Verdict:
         self.counters[v.kind] += 1
@@ -273,7 +380,17 @@ class Receiver:
         prev = self._last_counter.get(f.data_id)
         self._last_counter[f.data_id] = ctr
         lost = 0
-        if prev is not None:
+        advisory = None  # an authenticated message's counter fault: counted, not gating
+        if prev is not None and set_name_of(f) in self.authenticated:
+            delta = e2e.counter_delta(prev, ctr)
+            lost = delta - 1 if 1 < delta <= self.max_delta_counter else 0
+            if delta == 0 or delta > self.max_delta_counter:
+                advisory = (
+                    "repeated_counter" if delta == 0 else "counter_jump",
+                    f"{name}: expected counter {(prev + 1) % 16}, got {ctr} (authenticated: "
+                    f"used, its authenticator decides)",
+                )
+        elif prev is not None:
             delta = e2e.counter_delta(prev, ctr)
             if delta == 0:
                 return self._record(
@@ -319,16 +436,23 @@ class Receiver:
         phys = to_physical(f, raws)
         kind = "ok"
         detail = ""
-        if lost:
+        if advisory is not None:
+            kind, detail = advisory
+        elif lost:
             self.lost_frames += lost
             kind = "counter_jump"
             detail = f"{name}: expected counter {(prev + 1) % 16}, got {ctr} ({lost} lost)"
+        more: tuple[Message, ...] = ()
         if f.set_name:
-            msg, dropped = self.assemblers[f.set_name].add(f, phys, rx if rx is not None else now_s)
+            msgs, dropped = self.assemblers[f.set_name].add_all(
+                f, phys, rx if rx is not None else now_s)
             for v in dropped:
                 self._record(v)
+            msg = msgs[0] if msgs else None
+            more = tuple(msgs[1:])
         else:
             msg = MESSAGE_TYPES[set_name].from_signals({name: phys})
         return self._record(
-            Verdict(kind, name, message=msg, usable=True, lost=lost, detail=detail, rx_time_s=rx)
+            Verdict(kind, name, message=msg, usable=True, lost=lost, detail=detail, rx_time_s=rx,
+                    messages=more)
         )

@@ -46,6 +46,9 @@ WAIT_LIMIT_S = 1.0
 PER_KEY = 4  # secured messages of one key waiting for an authenticator at most
 CLASSES = ("auth_ok", "auth_fail", "auth_missing", "auth_replay")
 SECURED: dict[type, type] = {ThrCmd: ThrCmdMac, FaultCmd: FaultCmdMac}
+# Logical messages (bus.codec.set_name_of) of the secured messages and their authenticators:
+# the receiver of an authenticating node lets the authenticator judge them (bus.receiver).
+AUTHENTICATED_SETS = frozenset({"THR_CMD", "FAULT_CMD", "THR_CMD_MAC", "FAULT_CMD_MAC"})
 
 
 def message_key(msg: Message) -> int:
@@ -83,7 +86,12 @@ class Authenticator:
         # Secured messages waiting for their authenticator, by (type, key): a few per key, so
         # that a forged message with the key of a genuine one cannot push the genuine one out.
         self._msgs: dict[tuple[type, int], list[tuple[Message, float]]] = {}
-        self._macs: dict[tuple[type, int], tuple[ThrCmdMac, float]] = {}
+        # Authenticators waiting for their message, by (type, key): a few per key too, so a
+        # forged one cannot push the genuine one out. A message no authenticator verified
+        # keeps waiting (the genuine one may still come); ``_tried`` remembers that one was
+        # tried, so it is counted as failed rather than missing when it expires.
+        self._macs: dict[tuple[type, int], list[tuple[ThrCmdMac, float]]] = {}
+        self._tried: set[int] = set()
         self._latest_rx = -float("inf")
 
     def __repr__(self) -> str:  # never show the key
@@ -112,20 +120,21 @@ class Authenticator:
             if isinstance(msg, ThrCmdMac):  # FaultCmdMac is a subclass
                 of = FaultCmd if isinstance(msg, FaultCmdMac) else ThrCmd
                 k = (of, msg.key_lo)
-                if k in self._msgs:
-                    self._check_any(self._msgs.pop(k), msg, now_s, out)
-                else:
-                    self._macs[k] = (msg, rx)
+                if not (k in self._msgs and self._check_any(k, msg, now_s, out)):
+                    macs = self._macs.setdefault(k, [])
+                    if len(macs) >= PER_KEY:
+                        macs.pop(0)
+                    macs.append((msg, rx))
             elif type(msg) in SECURED:
                 k = (type(msg), message_key(msg))
-                if k in self._macs:
-                    mac, _ = self._macs.pop(k)
-                    self._check_any([(msg, rx)], mac, now_s, out)
-                else:
-                    waiting = self._msgs.setdefault(k, [])
-                    if len(waiting) >= PER_KEY:  # the oldest has waited long enough
-                        self._miss(waiting.pop(0)[0])
-                    waiting.append((msg, rx))
+                waiting = self._msgs.setdefault(k, [])
+                if len(waiting) >= PER_KEY:  # the oldest has waited long enough
+                    self._gone(waiting.pop(0)[0])
+                waiting.append((msg, rx))
+                for i, (mac, _) in enumerate(self._macs.get(k, [])):
+                    if self._check_any(k, mac, now_s, out):
+                        del self._macs[k][i]
+                        break
             else:
                 out.append((msg, rx))
         self.expire(now_s)
@@ -140,12 +149,22 @@ class Authenticator:
         for k, waiting in list(self._msgs.items()):
             for item in [w for w in waiting if late(w[1])]:
                 waiting.remove(item)
-                self._miss(item[0])
+                self._gone(item[0])
             if not waiting:
                 del self._msgs[k]
-        for k, (_, rx) in list(self._macs.items()):
-            if late(rx):
+        for k, macs in list(self._macs.items()):
+            macs[:] = [m for m in macs if not late(m[1])]
+            if not macs:
                 del self._macs[k]
+
+    def _gone(self, m: Message) -> None:
+        """A secured message leaves unused: failed when an authenticator was tried on it,
+        else missing."""
+        if id(m) in self._tried:
+            self._tried.discard(id(m))
+            self._fail(m)
+        else:
+            self._miss(m)
 
     def _miss(self, m: Message) -> None:
         self.counts["auth_missing"] += 1
@@ -157,18 +176,26 @@ class Authenticator:
             self.events.append(text + (" (further ones counted only)"
                                        if self.events_given == 20 else ""))
 
-    def _check_any(self, waiting: list[tuple[Message, float]], mac: ThrCmdMac, now_s: float,
-                   out: list[tuple[Message, float]]) -> None:
+    def _check_any(self, k: tuple[type, int], mac: ThrCmdMac, now_s: float,
+                   out: list[tuple[Message, float]]) -> bool:
         """The authenticator against the messages waiting with its key, newest first: the
-        first that verifies is checked for freshness and used; the others failed."""
-        for k, (m, rx) in enumerate(reversed(waiting)):
+        first that verifies is checked for freshness and used, the others of the key failed.
+        None verifies: they keep waiting (a forged authenticator must not make the genuine
+        message fail before its own authenticator arrives). Returns whether one verified."""
+        waiting = self._msgs.get(k, [])
+        for m, rx in reversed(waiting):
             if self._verifies(m, mac, now_s):
-                for m2, _ in waiting[: len(waiting) - 1 - k] + waiting[len(waiting) - k:]:
-                    self._fail(m2)
+                for m2, _ in waiting:
+                    if m2 is not m:
+                        self._tried.discard(id(m2))
+                        self._fail(m2)
+                self._tried.discard(id(m))
+                del self._msgs[k]
                 self._check(m, mac, now_s, rx, out)
-                return
+                return True
         for m, _ in waiting:
-            self._fail(m)
+            self._tried.add(id(m))
+        return False
 
     def _fail(self, m: Message) -> None:
         self.counts["auth_fail"] += 1

@@ -209,7 +209,20 @@ class Port:
         self.polls_capped = 0
         # SecOC (bus.secoc.Authenticator): signs THR_CMD and FAULT_CMD on send, and hands on
         # received ones only once authenticated. None: no authentication.
-        self.auth = None
+        self._auth = None
+
+    @property
+    def auth(self):
+        return self._auth
+
+    @auth.setter
+    def auth(self, auth) -> None:
+        """Setting an authenticator also tells the receiver which messages it authenticates:
+        their alive counter stops gating and their sets keep variants (bus.receiver)."""
+        from bus.secoc import AUTHENTICATED_SETS
+
+        self._auth = auth
+        self.receiver.authenticate(AUTHENTICATED_SETS if auth is not None else frozenset())
 
     @staticmethod
     def now_s() -> float:
@@ -340,6 +353,7 @@ class Port:
             v = self.receiver.classify(fr, now)
             if v.message is not None:
                 out.append((v.message, v.rx_time_s))
+                out.extend((m, v.rx_time_s) for m in v.messages)
         self.receiver.expire(now)
         if self.auth is not None:
             out = self.auth.accept(out, now)
