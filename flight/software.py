@@ -323,15 +323,20 @@ class FlightSoftware:
             burn_dw = self.arrays.mu_B_rad_s2.T @ (self.effectiveness.k * pred.burn_s)
             on_axis = np.abs(self.detector.e_B[pred.burning]).max(axis=0, initial=0.0) > 0.1
             self.kalman.update(self._phi_meas, burn_dw, pred.dangle_thr_B_rad, ~on_axis)
-            if det is None and self.detector.latched is None and not self._gyro_suspect():
+            if det is None and self.detector.latched is None and self._probe is None \
+                    and not self._gyro_suspect():
                 leak = self.kalman.leak_test(self.fdir.available)
                 if leak is not None:
                     i = leak.thruster
                     group = tuple(j for j in self.detector.groups[i] if self.fdir.available[j])
-                    det = Detection(tick=self._tick, thruster=i, kind=STUCK_ON, group=group,
-                                    names=tuple(self.arrays.names[j] for j in group),
-                                    rho=leak.projection_rad_s2, source="kalman")
-                    self.detector.latched = det
+                    found = Detection(tick=self._tick, thruster=i, kind=STUCK_ON, group=group,
+                                      names=tuple(self.arrays.names[j] for j in group),
+                                      rho=leak.projection_rad_s2, source="kalman")
+                    # The disturbance state carries what a failing thruster's burns left in
+                    # it into the quiet ticks, where it reads as the opposite thruster's
+                    # leak: the two hypotheses are fitted as for the detector's crossings.
+                    det = self._isolate_opposite(found, self.fdir.available)
+                    self.detector.latched = det if det is not None else found
         self._det = det
         if det is not None:
             resp = self.fdir.handle(det.kind, det)
