@@ -77,6 +77,11 @@ def _print_summary(doc: dict[str, Any]) -> None:
                 print(f"  {veh} {cls}: missed {_fmt_rate(st['missed_detection'])}, "
                       f"unobservable {st['unobservable']}, latency p50/p90/max "
                       f"{_fmt_lat(st['latency_s'])}")
+                if "fraction_error" in st:
+                    fe = st["fraction_error"]
+                    print(f"    thrust fraction within {fe['tolerance']}: "
+                          f"{_fmt_rate(fe['within_tolerance'])}, |error| p50/p90/max "
+                          f"{_fmt_lat(fe)}, mean signed {fe['mean_signed']}")
                 if "commanded_goal" in st:
                     g = st["commanded_goal"]
                     print(f"    commanded on {g['min_ticks']}+ ticks after the fault: detected "

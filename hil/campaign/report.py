@@ -173,6 +173,12 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
                          f"{_fmt_lat(st['latency_s'])} | "
                          f"{_fmt_rate(st['false_alarm_before_fault'])} |")
             L.append("")
+            if "fraction_error" in vs.get("degraded", {}):
+                fe = vs["degraded"]["fraction_error"]
+                L += [f"Degraded: thrust fraction named within {fe['tolerance']} of the injected "
+                      f"one in {_fmt_rate(fe['within_tolerance'])} of the observable runs; "
+                      f"|error| p50 / p90 / max {_fmt_lat(fe)}, mean signed error "
+                      f"{fe['mean_signed']}.", ""]
             goals = [k for k in fcls if "commanded_goal" in vs[k]]
             if goals:
                 n = vs[goals[0]]["commanded_goal"]["min_ticks"]

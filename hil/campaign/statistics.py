@@ -23,6 +23,9 @@ fault-free runs), each with its exact Clopper-Pearson 95 % interval:
 * missed-detection rate: observable fault runs without a correct detection / observable fault
   runs (unobservable runs are counted apart and said so);
 * latency (fault time to the first correct detection): p50, p90, max over detected runs;
+* degraded: the named thrust fraction against the injected one, |error| p50 / p90 / max,
+  its mean signed error, and the share of observable runs detected with it within
+  ``FRACTION_TOL`` (the goal's "fraction within +/-0.1");
 * for faults seen only when their thruster fires (fails to fire, degraded), also the rate and
   latency the FDIR goal states (issue 12): among runs whose thruster was commanded on at least
   ``GOAL_COMMANDED_TICKS`` ticks after the fault, the detection rate, and the latency from the
@@ -48,6 +51,8 @@ FAILED = ("error", "incomplete")
 # The fails-to-fire goal counts runs whose thruster was commanded on this many ticks or more
 # after the fault (fewer firings may carry too little evidence).
 GOAL_COMMANDED_TICKS = 3
+# The degraded goal: detected as degraded with the thrust fraction within this of the truth.
+FRACTION_TOL = 0.1
 _EPS = 1e-9
 
 
@@ -118,6 +123,7 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
         "latency_s": None, "detected_as": None, "named": None,
         "commanded_after_fault": commanded_after, "commanded_ticks_after_fault": commanded_ticks,
         "first_command_after_fault_s": first_command_s, "latency_from_command_s": None,
+        "fraction_error": None,
         "max_attitude_error_deg": None,
         "max_rate_error_deg_s": None, "fuel_kg": None, "sim_s": None,
     }
@@ -129,7 +135,8 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
     if reason is not None:
         row.update(verdict="incomplete", reason=reason)
         return row
-    dets = [{k: d.get(k) for k in ("t_s", "thruster", "type", "source", "latency_s", "correct")}
+    dets = [{k: d.get(k) for k in ("t_s", "thruster", "type", "source", "latency_s", "correct",
+                                   "fraction")}
             for d in summary["detections"]]
     row.update(detections=dets, false_alarms=len(summary["false_alarms"]),
                max_attitude_error_deg=summary["max_attitude_error_deg"],
@@ -151,6 +158,9 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
         d = correct[0]
         row.update(verdict="detected", latency_s=d["latency_s"],
                    detected_as="exact" if len(_names(d["thruster"])) == 1 else "group")
+        if f["kind"] == "degraded" and d.get("fraction") is not None \
+                and f.get("fraction") is not None:
+            row["fraction_error"] = round(float(d["fraction"]) - float(f["fraction"]), 6)
         if first_command_s is not None:
             row["latency_from_command_s"] = round(d["t_s"] - first_command_s, 6)
     elif not judged:
@@ -211,6 +221,16 @@ def campaign_statistics(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 st["latency_s"] = _pct([r["latency_s"] for r in det])
                 st["false_alarm_before_fault"] = _rate(
                     sum(r["false_alarms_before_fault"] > 0 for r in done), len(done))
+                if cls == "degraded":
+                    # The goal: named degraded with the thrust fraction within FRACTION_TOL.
+                    errs = [r["fraction_error"] for r in det
+                            if r.get("fraction_error") is not None]
+                    st["fraction_error"] = {
+                        **_pct([abs(e) for e in errs]),
+                        "within_tolerance": _rate(
+                            sum(abs(e) <= FRACTION_TOL for e in errs), len(obs)),
+                        "tolerance": FRACTION_TOL,
+                        "mean_signed": None if not errs else round(float(np.mean(errs)), 4)}
                 goal = [r for r in obs if (r.get("commanded_ticks_after_fault") or 0)
                         >= GOAL_COMMANDED_TICKS]
                 if any(r.get("commanded_ticks_after_fault") is not None for r in obs):

@@ -198,3 +198,28 @@ def test_commands_after_the_fault_are_counted_from_the_ticks_on_times() -> None:
     assert first == pytest.approx(0.45)  # the tick-2 pulse still burns at the fault time
     assert _commands_after(replace(spec, fault={"kind": "stuck_on", "thruster": "B",
                                                 "t_s": 0.45}), col) is None
+
+
+def test_a_degraded_detection_carries_its_fraction_error_and_the_goal_counts_the_tolerance(
+        ) -> None:
+    spec = replace(SPEC, fault={"kind": "degraded", "thruster": "A", "t_s": 4.0,
+                                "fraction": 0.5})
+    fault = {"t_s": 4.0, "thruster": "A", "type": "degraded"}
+
+    def row(run: int, named: float | None) -> dict:
+        dets = [] if named is None else [{"t_s": 6.0, "thruster": "A", "type": "degraded",
+                                          "latency_s": 2.0, "correct": True,
+                                          "fraction": named}]
+        r = classify(spec, _summary(detections=dets, faults=[fault],
+                                    missed_faults=[] if dets else [fault]),
+                     commanded_after=True)
+        return dict(r, run=run)
+
+    r = row(0, 0.42)
+    assert r["fraction_error"] == pytest.approx(-0.08)
+    rows = [r, row(1, 0.75), row(2, 0.55), row(3, None)]
+    fe = campaign_statistics(rows)["by_vehicle"]["v"]["degraded"]["fraction_error"]
+    # Within 0.1: runs 0 and 2 of the 4 observable (run 1 is 0.25 off, run 3 missed).
+    assert (fe["within_tolerance"]["k"], fe["within_tolerance"]["n"]) == (2, 4)
+    assert fe["max"] == pytest.approx(0.25) and fe["n"] == 3
+    assert fe["mean_signed"] == pytest.approx((-0.08 + 0.25 + 0.05) / 3, abs=1e-4)
