@@ -154,6 +154,7 @@ def test_realtime_60_s_no_overrun_with_jitter_and_compute(tmp_path) -> None:
     # Time-triggered actuation (--actuation-phase-ms): a command in time takes effect exactly
     # the phase after its sample went out, a late one on arrival, and is counted.
     from hil.config import load_scenario
+    from hil.plant_shell import REALTIME_MAX_WAIT_S
 
     g_s = load_scenario(scen).vehicle.gyro.latency_ms / 1e3
     links = [c for x in _jsonl(out / "plant.jsonl") for c in x.get("chain", [])]
@@ -161,7 +162,11 @@ def test_realtime_60_s_no_overrun_with_jitter_and_compute(tmp_path) -> None:
     late = [c for c in links if c.get("late")]
     for c in links:
         if c.get("late"):
-            assert c["applied_s"] == pytest.approx(c["received_s"], abs=0.011), c
+            # On arrival: not before it, and within the plant's own wake bound (a THR_CMD
+            # wakes it at once; a host that stalls it is held to REALTIME_MAX_WAIT_S). An
+            # 11 ms bound failed in CI with 11.4 ms on a virtual machine with steal time.
+            assert c["received_s"] - 1e-6 <= c["applied_s"] \
+                <= c["received_s"] + REALTIME_MAX_WAIT_S + 0.002, c
             assert c["applied_s"] > c["sample_s"] + g_s + PHASE_MS / 1e3
         else:
             assert c["applied_s"] - c["sample_s"] == pytest.approx(
