@@ -113,25 +113,19 @@ class SetAssembler:
         self.variants: dict[int, list[_PendingSet]] | None = None
 
     def _drop(self, why: str, rx_s: float | None) -> Verdict:
-        self.incomplete += 1
         p = self.pending
-        have = sorted(p.signals) if p else []
         self.pending = None
+        return self._incomplete(p, why, rx_s)
+
+    def _incomplete(self, p: _PendingSet | None, why: str, rx_s: float | None) -> Verdict:
+        """Count a set (the pending one, or a variant) that will not complete."""
+        self.incomplete += 1
+        have = sorted(p.signals) if p else []
         return Verdict(
             "incomplete_set",
             self.set_name,
             detail=f"{self.set_name}: expected frames {', '.join(self.names)}, got "
             f"{', '.join(have) or 'none'} ({why})",
-            rx_time_s=rx_s,
-        )
-
-    def _drop_variant(self, p: _PendingSet, why: str, rx_s: float | None) -> Verdict:
-        self.incomplete += 1
-        return Verdict(
-            "incomplete_set",
-            self.set_name,
-            detail=f"{self.set_name}: expected frames {', '.join(self.names)}, got "
-            f"{', '.join(sorted(p.signals)) or 'none'} ({why})",
             rx_time_s=rx_s,
         )
 
@@ -147,7 +141,7 @@ class SetAssembler:
             if len(self.variants) >= VARIANT_KEYS:
                 oldest = next(iter(self.variants))
                 for p in self.variants.pop(oldest):
-                    dropped.append(self._drop_variant(p, "pushed out by newer keys", rx_s))
+                    dropped.append(self._incomplete(p, "pushed out by newer keys", rx_s))
             self.variants[key] = []
         sets = self.variants[key]
         forks = []
@@ -163,7 +157,7 @@ class SetAssembler:
             if q.signals not in [p.signals for p in sets]:
                 sets.append(q)
         while len(sets) > VARIANTS:
-            dropped.append(self._drop_variant(sets.pop(0), "variants of the key", rx_s))
+            dropped.append(self._incomplete(sets.pop(0), "variants of the key", rx_s))
         out: list[Message] = []
         cls = MESSAGE_TYPES[self.set_name]
         check = getattr(cls, "set_problem", None)
@@ -171,7 +165,7 @@ class SetAssembler:
             sets.remove(p)
             problem = check(p.signals) if check else None
             if problem:
-                dropped.append(self._drop_variant(p, problem, rx_s))
+                dropped.append(self._incomplete(p, problem, rx_s))
                 continue
             self.completed += 1
             out.append(cls.from_signals(p.signals))
@@ -230,7 +224,7 @@ class SetAssembler:
             for key, sets in list(self.variants.items()):
                 for p in [p for p in sets if now_s - p.first_rx_s > self.deadline_s]:
                     sets.remove(p)
-                    out.append(self._drop_variant(p, f"older than {self.deadline_s} s", now_s))
+                    out.append(self._incomplete(p, f"older than {self.deadline_s} s", now_s))
                 if not sets:
                     del self.variants[key]
             return out
