@@ -4,9 +4,9 @@
 # (a private network namespace) and the reference scenarios.
 #
 # Wall time on a 2-core machine: the unit tests run in two pytest-xdist workers; the vcan tests
-# run in two shards side by side, each in its own user-mode Linux instance (one virtual CPU
-# each): the real-time system tests, which mostly wait on the clock, beside the rest.
-# HIL_TEST_JOBS=1 runs everything one after the other.
+# run in two shards one after the other, each in its own user-mode Linux instance (one virtual CPU
+# each): the real-time system tests first and alone, then the rest.
+# HIL_TEST_JOBS=1 runs the unit tests in one worker.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
