@@ -35,6 +35,7 @@ import shutil
 import signal
 import sys
 import tempfile
+import threading
 import time
 import traceback
 import warnings
@@ -212,6 +213,28 @@ def _sigint_ignored() -> Iterator[None]:
         signal.signal(signal.SIGINT, old)
 
 
+# How often the cluster's futures are looked at while none has finished (s).
+_POLL_S = 0.05
+
+
+@contextlib.contextmanager
+def _sigint_deferred() -> Iterator[threading.Event]:
+    """Ctrl-C sets the event the caller looks at between results, instead of raising inside
+    Dask's own waits: distributed's ``sync()`` (2026.8) then logs a traceback from its cancel
+    callback (a NameError on a future not yet made) however the campaign handles the
+    interrupt. The caller raises KeyboardInterrupt itself, outside Dask."""
+    stop = threading.Event()
+    try:
+        old = signal.signal(signal.SIGINT, lambda *_: stop.set())
+    except ValueError:  # not the main thread: Ctrl-C is the main thread's business
+        yield stop
+        return
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 class Executor:
     """Where tasks run: ``local`` (this process), an embedded LocalCluster, or a scheduler."""
 
@@ -277,21 +300,34 @@ class Executor:
             for t in tasks:
                 yield fn(t)
             return
-        from distributed import as_completed
-
         futs = [self.client.submit(fn, t, pure=False) for t in tasks]
         self._futs = futs
-        try:
-            for fut in as_completed(futs):
-                try:
-                    yield fut.result()
-                except Exception:  # noqa: BLE001 - the worker, not the run, failed
-                    self.lost += 1
-                fut.release()
-        finally:
-            for f in futs:
-                if not f.done():
-                    f.cancel()
+        pending = list(futs)
+        with _sigint_deferred() as stop:
+            try:
+                while pending:
+                    if stop.is_set():
+                        raise KeyboardInterrupt
+                    done = [f for f in pending if f.done()]
+                    if not done:
+                        time.sleep(_POLL_S)
+                        continue
+                    ready = set(map(id, done))
+                    pending = [f for f in pending if id(f) not in ready]
+                    for fut in done:
+                        try:
+                            row = fut.result()
+                        except Exception:  # noqa: BLE001 - the worker, not the run, failed
+                            self.lost += 1
+                        else:
+                            yield row
+                        fut.release()
+                        if stop.is_set():
+                            raise KeyboardInterrupt
+            finally:
+                for f in futs:
+                    if not f.done():
+                        f.cancel()
 
 
 # --------------------------------------------------------------------------- progress
