@@ -17,6 +17,13 @@ rate changed as the model said and the gyro check's jump level went to 5 dead zo
 was 704.4), and again when the last tick's thrusters came to count in the gyro check's slack on
 ticks without thrust (S000-nofire, S002-50, S002-15: the same detections);
 ``test_golden.py`` re-runs the scenarios and compares bit for bit.
+
+Every trace is computed in a child process under one numeric environment whatever the CPU
+(``PORTABLE_ENV``): glibc's libm, NumPy's loops and OpenBLAS on their SSE code paths (the
+settings ``hil.uml_fpu`` uses inside user-mode Linux) and one BLAS thread. On their default
+paths they pick kernels by CPU (AVX2, AVX-512, FMA) that round differently: the files written
+on an Intel machine with AVX-512 did not match on an AMD one. They were written again under
+that environment (every detection the same, to the bit in time, kind and thruster).
 A change that is meant to change the numbers regenerates them on purpose::
 
     .venv/bin/python -m tests.golden.golden            # every scenario
@@ -27,14 +34,21 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from hil.uml_fpu import SSE_ONLY_ENV
+
 GOLDEN_DIR = Path(__file__).resolve().parent
-SCENARIO_DIR = GOLDEN_DIR.parents[1] / "configs" / "scenarios"
+ROOT = GOLDEN_DIR.parents[1]
+SCENARIO_DIR = ROOT / "configs" / "scenarios"
+# The numeric environment of every trace (module doc); the child checks it got it.
+PORTABLE_ENV = {**SSE_ONLY_ENV, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 
 TRUTH_FIELDS = ("q_BO", "q_BI", "omega_B_rad_s", "omega_BO_B_rad_s", "flex_q", "flex_qdot",
                 "flex_rate_gyro_B_rad_s", "v_O_m_s", "dv_B_m_s", "thrust_n", "valve_cmd",
@@ -55,7 +69,28 @@ def _digest(rows: list[Any]) -> str:
 
 
 def trace(name: str) -> dict[str, Any]:
-    """Digests and detections of one in-process run of scenario ``name``."""
+    """``trace_here(name)`` computed in a child process under ``PORTABLE_ENV``."""
+    env = {**os.environ, **PORTABLE_ENV}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(GOLDEN_DIR), env.get("PYTHONPATH"))
+                                        if p)
+    proc = subprocess.run([sys.executable, "-c", f"import golden; golden._child({name!r})"],
+                          env=env, cwd=ROOT, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"golden trace of {name}: child exited {proc.returncode}: "
+                           f"{proc.stderr.strip()[-2000:]}")
+    return json.loads(proc.stdout)
+
+
+def _child(name: str) -> None:
+    missing = {k: v for k, v in PORTABLE_ENV.items() if os.environ.get(k) != v}
+    if missing:
+        raise SystemExit(f"golden: expected the environment {missing}")
+    sys.stdout.write(json.dumps(trace_here(name)))
+
+
+def trace_here(name: str) -> dict[str, Any]:
+    """Digests and detections of one in-process run of scenario ``name``, in this process
+    (whatever its numeric environment: ``trace`` is the one the files hold)."""
     from hil.sim import simulate
 
     run = simulate(SCENARIO_DIR / f"{name}.yaml", keep=True)
