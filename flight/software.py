@@ -60,6 +60,11 @@ _ISOLATION_TICKS = 10
 # points at most is named. chosen: orel's neighbours are 4-29 deg apart; the adaptive
 # observer takes part of a stuck thrust in as flex and turns its residual by that much.
 _ALIKE_DEG = 35.0
+# A burn of at least this share of the tick (one thruster) is a sustained firing: its
+# commanded effect is kept for the relative dead zone of the next ticks
+# (detector.relative_dead_zone_memory). Short pulses, such as the controller's against a
+# small leak, charge the observer's states little and are not kept.
+_SUSTAINED = 0.75
 _ALIKE_SHARE = 0.5
 # ... only over at least this many ticks of evidence: the raw residual carries the flex the
 # observer removes, and only a sum over a few ticks averages it out (iss_rs crosses on one
@@ -177,6 +182,10 @@ class FlightSoftware:
         self._deferred_learning: tuple | None = None
         # (observer residual, burns, outside the dead zone, raw residual) of the last ticks
         self._window: list[tuple[np.ndarray, np.ndarray, bool, np.ndarray]] = []
+        # The isolation found neither hypothesis of a pair (_isolate_opposite, _settle).
+        self._dismissed = False
+        # Commanded effect kept for the relative dead zone (detector.relative_dead_zone_memory).
+        self._commanded_kept = 0.0
         # (detection held back, the pair left out of the allocation, ticks left) while probing
         self._probe: tuple[Detection | None, tuple[int, int], int] | None = None
         self._probed: dict[tuple[int, int], int] = {}
@@ -286,6 +295,7 @@ class FlightSoftware:
                 inc = self.arrays.mu_B_rad_s2 * (self.effectiveness.k * pred.eff_s)[:, None]
             verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s, inc,
                                            self._obs.innovation_B_rad_s)
+            pred = self._remembered(pred)
             self.detector.noise_ratio = self.gyro_check.noise_ratio()
             dw = w_hat - self._omega_pred
             det = None
@@ -335,13 +345,24 @@ class FlightSoftware:
                     # The disturbance state carries what a failing thruster's burns left in
                     # it into the quiet ticks, where it reads as the opposite thruster's
                     # leak: the two hypotheses are fitted as for the detector's crossings.
-                    det = self._isolate_opposite(found, self.fdir.available)
-                    self.detector.latched = det if det is not None else found
+                    det = self._settle(self._isolate_opposite(found, self.fdir.available),
+                                       found)
         self._det = det
         if det is not None:
             resp = self.fdir.handle(det.kind, det)
             if resp.rebaseline:
                 self.rebaseline()
+
+    def _remembered(self, pred: Prediction) -> Prediction:
+        """``pred`` with the commanded effect of the relative dead zone kept from the last
+        ticks (``detector.relative_dead_zone_memory``; unchanged when 0)."""
+        memory = self.detector.cfg.relative_dead_zone_memory
+        if memory <= 0.0:
+            return pred
+        carried = memory * self._commanded_kept
+        sustained = float(np.max(pred.burn_s, initial=0.0)) >= _SUSTAINED * self.h
+        self._commanded_kept = max(pred.dw_thr_abs_rad_s if sustained else 0.0, carried)
+        return replace(pred, dw_thr_abs_rad_s=max(pred.dw_thr_abs_rad_s, carried))
 
     def _inside(self, dw: np.ndarray, pred: Prediction, avail: np.ndarray) -> bool:
         """Is the residual ``dw`` (3,) inside the detector's dead zone for this tick's
@@ -385,15 +406,13 @@ class FlightSoftware:
                     return None
                 else:
                     self._probe = None
-                    det = self._isolate_opposite(held_det, avail, decide=True)
-                    self.detector.latched = det
-                    return det
+                    return self._settle(self._isolate_opposite(held_det, avail, decide=True),
+                                        None)
             elif out.detection is None and self.detector.latched is None:
                 self._suspect(tick, avail)
             if out.detection is not None:
                 det = self._isolate_opposite(self._isolate_alike(out.detection, avail), avail)
-                self.detector.latched = det if det is not None else out.detection
-                return det
+                return self._settle(det, out.detection)
         if out.detection is None and not out.held and pred.eff_s is not None:
             if learn:
                 self._learn(eps, pred, avail)
@@ -502,6 +521,14 @@ class FlightSoftware:
                 return None
             if det.kind == STUCK_ON and ratio > need:
                 frac = float(self.effectiveness.fraction[i])
+                eff_bound = self.effectiveness.bound
+                if eff_bound > 0.0 and frac >= 1.0 - eff_bound:
+                    # The deficit of i fits better, but i's own burns show its thrust within
+                    # the admitted errors: neither hypothesis holds (the detector's own rule
+                    # for a fails-to-fire crossing). Seen in real time on kalman_cube: a
+                    # "degraded" thruster at 105 % of its thrust.
+                    self._dismissed = True
+                    return None
                 kind = DEGRADED if frac >= d.cfg.fail_fraction else FAIL_TO_FIRE
                 who = i
                 rho = float(d.rho_on[i])
@@ -516,6 +543,22 @@ class FlightSoftware:
         # After a probe the detection is the pair's fit, on this tick (source "isolation");
         # the replay of the residuals (hil campaign sweep) sees only the detector's crossings.
         return replace(det, tick=self._tick, source="isolation") if decide else det
+
+    def _settle(self, det: Detection | None, found: Detection | None) -> Detection | None:
+        """Latch what the isolation named (``det``; while a probe runs, None: ``found`` is
+        held). Dismissed by the isolation (neither hypothesis holds): nothing is latched, the
+        residuals and the leak test restart on the next ticks."""
+        if self._dismissed:
+            self._dismissed = False
+            self.detector.rebaseline(hold_ticks=0)
+            self._window = []
+            self._probe = None
+            if self.kalman is not None:
+                self.kalman.reset(self._phi_meas, self._obs.omega_hat_B_rad_s)
+            self.detector.latched = None
+            return None
+        self.detector.latched = det if det is not None else found
+        return det
 
     def _gyro_suspect(self) -> bool:
         return self._held is not None or self.gyro_check.suspect
