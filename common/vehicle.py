@@ -196,6 +196,18 @@ class ObserverCfg(_Model):
     initial_damping: NonNegFloat = 0.01
     # |mu^| bound: the flex share at the gyro of a pulse's rate change (seed 003 eq. 8)
     mu_bound: PosFloat = 5.0
+    # The identified frequency stays within [lo, hi] times the a-priori one (and under 0.4 /
+    # tick): how well the vehicle's modes are known. The default [1/4, 4] lets a slow drift
+    # of the rigid estimate be taken for a mode at the band's floor.
+    freq_band: tuple[PosFloat, PosFloat] = (0.25, 4.0)
+
+    @model_validator(mode="after")
+    def _band_holds_the_prior(self) -> ObserverCfg:
+        lo, hi = self.freq_band
+        if not lo < 1.0 < hi:
+            raise _FieldError("freq_band", "[lo, hi] with lo < 1 < hi (factors of "
+                              "initial_freq_hz)", list(self.freq_band))
+        return self
 
 
 class DetectorCfg(_Model):

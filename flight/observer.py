@@ -28,7 +28,8 @@ Deviation from the seed, and why: the seed writes the parameter steps as
 their good values depend on the tone's amplitude. We use the normalised gradient step (NLMS):
 the same descent direction on ``eps^2``, divided by ``P_g`` and ``P_v``, running mean squares of
 the regressors, so W4 and W8 are dimensionless fractions of a full step. ``A^`` is kept in the
-band of frequencies ``freq_bounds_hz`` (default [f0/4, min(4 f0, 0.4/h)]) so that an unmodelled
+band of frequencies ``freq_bounds_hz`` (default ``freq_band`` times f0, [f0/4, min(4 f0, 0.4/h)] unless
+the vehicle narrows it) so that an unmodelled
 input (a failed thruster) cannot drive it to a non-physical value. ``B`` is fixed from the
 initial frequency and ``initial_damping`` (the logarithmic decrement delta of seed 003 eq. 2).
 
@@ -130,7 +131,8 @@ class AdaptiveObserver:
         self.f0_hz = f0
         self.delta = delta
         if freq_bounds_hz is None:
-            lo, hi = f0 / 4.0, np.minimum(4.0 * f0, 0.4 / self.h)
+            band_lo, band_hi = cfg.freq_band
+            lo, hi = f0 * band_lo, np.minimum(f0 * band_hi, 0.4 / self.h)
         else:
             lo, hi = (np.full(3, float(b)) for b in freq_bounds_hz)
         self.freq_bounds_hz = (lo, hi)

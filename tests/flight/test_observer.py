@@ -100,3 +100,29 @@ def test_per_channel_initial_frequency_identifies_a_different_mode_on_each_chann
 def test_a_scalar_initial_frequency_is_the_same_on_every_channel() -> None:
     obs = AdaptiveObserver(ObserverCfg(gains=GAINS, initial_freq_hz=0.3), H)
     np.testing.assert_allclose(obs.freq_hz(), [0.3, 0.3, 0.3])
+
+
+@pytest.mark.parametrize("band", [(0.25, 4.0), (0.6, 1.7)])
+def test_a_slow_rigid_drift_drives_the_frequency_to_the_floor_of_its_band(band) -> None:
+    """A rigid rate that drifts one way for 10 s, then the other (an unmodelled torque, no
+    thrust) is taken for a very slow mode: the frequency estimate falls to the band's floor,
+    ``freq_band[0]`` times the prior (orel-envelope's last false alarms: 0.08 Hz for a 0.3 Hz
+    roll mode). The band is what bounds it."""
+    obs = AdaptiveObserver(ObserverCfg(kind="adaptive", gains=GAINS, initial_freq_hz=0.3,
+                                       initial_damping=0.04, freq_band=band), H)
+    rng = np.random.default_rng(3)
+    w, lowest = 0.0, 1.0
+    for n in range(600):
+        w += 2e-5 * (1 if (n // 50) % 2 == 0 else -1)
+        out = obs.update(np.array([w, 0.0, 0.0]) + 5e-6 * rng.standard_normal(3), np.zeros(3),
+                         np.zeros(3))
+        lowest = min(lowest, float(out.freq_hat_hz[0]))
+    assert lowest == pytest.approx(0.3 * band[0], rel=1e-9)
+
+
+def test_a_band_that_does_not_hold_the_prior_is_refused() -> None:
+    from common.errors import ConfigError
+    from hil.config import load_vehicle
+
+    with pytest.raises(ConfigError, match=r"freq_band: expected \[lo, hi\] with lo < 1 < hi"):
+        load_vehicle("orel", {"observer": {"freq_band": [1.2, 2.0]}})
