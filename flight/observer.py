@@ -28,9 +28,9 @@ Deviation from the seed, and why: the seed writes the parameter steps as
 their good values depend on the tone's amplitude. We use the normalised gradient step (NLMS):
 the same descent direction on ``eps^2``, divided by ``P_g`` and ``P_v``, running mean squares of
 the regressors, so W4 and W8 are dimensionless fractions of a full step. ``A^`` is kept in the
-band of frequencies ``freq_bounds_hz`` (default ``freq_band`` times f0, [f0/4, min(4 f0, 0.4/h)] unless
-the vehicle narrows it) so that an unmodelled
-input (a failed thruster) cannot drive it to a non-physical value. ``B`` is fixed from the
+band of frequencies ``freq_bounds_hz`` (default: the config's ``freq_band`` times f0, [f0/4,
+min(4 f0, 0.4/h)] unless the vehicle narrows it) so that an unmodelled input (a failed
+thruster) cannot drive it to a non-physical value. ``B`` is fixed from the
 initial frequency and ``initial_damping`` (the logarithmic decrement delta of seed 003 eq. 2).
 
 Convergence region (tests/flight/test_observer.py and a scan of the error dynamics, the linear
