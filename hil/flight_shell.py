@@ -177,7 +177,7 @@ class FlightShell:
         detection = None
         if det is not None:
             self.detections += 1
-            detection = detection_record(det, n, self.h, self.names)
+            detection = detection_record(det, n, self.h, self.names, t_s=self.t_of(n))
             thr = detection["thruster"]
             self.events.append(f"detection: {det.kind} of "
                                f"{thr if isinstance(thr, str) else 'one of ' + str(thr)} "

@@ -165,12 +165,14 @@ def truth_fields(truth, err_q: np.ndarray) -> TruthFields:
     }
 
 
-def detection_record(det, tick: int, tick_s: float,
-                     thruster_names: Sequence[str]) -> DetectionRecord:
-    """The record of a ``flight.detector.Detection`` raised at ``tick``."""
+def detection_record(det, tick: int, tick_s: float, thruster_names: Sequence[str],
+                     t_s: float | None = None) -> DetectionRecord:
+    """The record of a ``flight.detector.Detection`` raised at ``tick``; ``t_s`` its time on
+    the plant's clock (default ``tick * tick_s``: lockstep and in-process runs, where the two
+    agree)."""
     names = [thruster_names[i] for i in det.group]
     rec: DetectionRecord = {
-        "t_s": round(tick * tick_s, 6), "tick": tick,
+        "t_s": round(tick * tick_s if t_s is None else t_s, 6), "tick": tick,
         "thruster": (names[0] if len(names) == 1 else names) if names else None,
         "type": det.kind, "source": det.source, "rho": float(det.rho)}
     if getattr(det, "fraction", None) is not None:  # degraded: the estimated thrust fraction
