@@ -446,11 +446,14 @@ def _binary_stream(stream) -> BinaryIO | None:
 # cleaning up (SIGKILL, OOM killer) the kernel sends the guard SIGTERM (PR_SET_PDEATHSIG), so
 # no UML process is left sleeping forever while holding its memory. Its first argument is the
 # control folder to remove on that path (empty: keep it), since our own clean-up cannot run.
+# The guard's wait discards the shell's own job report ("Aborted" when linux.uml dies by
+# SIGABRT while powering off, seen under load after the status was written): it is not the
+# command's output, and the status file says how the command ended (UmlError without one).
 _GUARD = """ctl=$1; shift; p=
 trap 'if [ -n "$p" ]; then kill -s KILL -- -"$p" "$p" 2>/dev/null; fi
 [ -n "$ctl" ] && rm -rf -- "$ctl"; exit 143' TERM
 "$@" & p=$!
-wait "$p"; rc=$?
+wait "$p" 2>/dev/null; rc=$?
 kill -s KILL -- -"$p" 2>/dev/null
 exit "$rc"
 """

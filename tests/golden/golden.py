@@ -15,9 +15,7 @@ S004-polar), and when the detector stopped taking the observer's residual where 
 rate changed as the model said and the gyro check's jump level went to 5 dead zones
 (REC-nofire, REC-stuck, S000-nofire, S002-50 unchanged detections; S002-15 detects at 701.6 s,
 was 704.4), and again when the last tick's thrusters came to count in the gyro check's slack on
-ticks without thrust (S000-nofire, S002-50, S002-15: the same detections), and for orel's
-five when its observer's frequency band became [0.6, 1.7] times the prior (the same
-detections, to the tick);
+ticks without thrust (S000-nofire, S002-50, S002-15: the same detections);
 ``test_golden.py`` re-runs the scenarios and compares bit for bit.
 
 Every trace is computed in a child process under one numeric environment whatever the CPU

@@ -134,3 +134,17 @@ def test_setup_failure_names_the_step_and_shows_the_kernel_log(monkeypatch):
     assert text.startswith("hil uml: set-up inside user-mode Linux failed: insmod vcan\n")
     assert "can't insert '/nonexistent/vcan.ko'" in text
     assert "kernel log (tail):" in text
+
+
+def test_the_guard_passes_the_status_and_keeps_the_shells_job_report_out(tmp_path):
+    """linux.uml dying by SIGABRT at power-off made the guard's shell print "Aborted" on the
+    caller's stderr (a CI run under load); the status still comes back, the report does not."""
+    from hil.uml import _GUARD
+
+    ctl = tmp_path / "ctl"
+    ctl.mkdir()
+    res = subprocess.run(["/bin/sh", "-c", _GUARD, "guard", str(ctl), "/bin/sh", "-c",
+                          "echo child-err >&2; kill -ABRT $$"],
+                         capture_output=True, text=True, timeout=30)
+    assert res.returncode == 128 + 6
+    assert res.stderr == "child-err\n"
