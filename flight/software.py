@@ -60,16 +60,16 @@ _ISOLATION_TICKS = 10
 # points at most is named. chosen: orel's neighbours are 4-29 deg apart; the adaptive
 # observer takes part of a stuck thrust in as flex and turns its residual by that much.
 _ALIKE_DEG = 35.0
-# A burn of at least this share of the tick (one thruster) is a sustained firing: its
-# commanded effect is kept for the relative dead zone of the next ticks
-# (detector.relative_dead_zone_memory). Short pulses, such as the controller's against a
-# small leak, charge the observer's states little and are not kept.
-_SUSTAINED = 0.75
 _ALIKE_SHARE = 0.5
 # ... only over at least this many ticks of evidence: the raw residual carries the flex the
 # observer removes, and only a sum over a few ticks averages it out (iss_rs crosses on one
 # tick, where the raw direction named a neighbour in 3 of 23 stuck-on runs it got right).
 _ALIKE_MIN_TICKS = 3
+# A burn of at least this share of the tick (one thruster) is a sustained firing: its
+# commanded effect is kept for the relative dead zone of the next ticks
+# (detector.relative_dead_zone_memory). Short pulses, such as the controller's against a
+# small leak, charge the observer's states little and are not kept.
+_SUSTAINED = 0.75
 # A hypothesis replaces the detector's when its residual sum of squares is this many times
 # smaller. chosen: a factor that noise over 10 ticks does not reach by chance.
 _ISOLATION_RATIO = 2.0
@@ -79,6 +79,8 @@ _ISOLATION_RATIO = 2.0
 # a failed one gives nothing) and the hypotheses are fitted again. Two ticks: an integrating
 # gyro's mean over the second interval has no burn of either in it.
 _PROBE_TICKS = 2
+# What the isolation returns when neither hypothesis of a pair holds (_isolate_opposite).
+NEITHER = Detection(tick=-1, thruster=-1, kind="none", group=(), names=(), rho=0.0)
 # The probe starts before a crossing when a failing thruster's and its opposite's stuck-on
 # evidence both pass this share of their thresholds within _SUSPECT_TIE of each other, so the
 # separating ticks are in by the time one crosses (no latency added); once per pair per
@@ -182,8 +184,6 @@ class FlightSoftware:
         self._deferred_learning: tuple | None = None
         # (observer residual, burns, outside the dead zone, raw residual) of the last ticks
         self._window: list[tuple[np.ndarray, np.ndarray, bool, np.ndarray]] = []
-        # The isolation found neither hypothesis of a pair (_isolate_opposite, _settle).
-        self._dismissed = False
         # Commanded effect kept for the relative dead zone (detector.relative_dead_zone_memory).
         self._commanded_kept = 0.0
         # (detection held back, the pair left out of the allocation, ticks left) while probing
@@ -485,7 +485,8 @@ class FlightSoftware:
         (a leak still pushes). Over the last ticks, fit both hypotheses to the residual
         (``flight.detector.leak_or_deficit``) and name the one that fits clearly better. When
         neither does, return None and probe (``_PROBE_TICKS``); after the probe (``decide``)
-        the better fit is named."""
+        the better fit is named. ``NEITHER`` when the deficit fits better but the thruster's
+        own burns show its full thrust (``_settle`` latches nothing then)."""
         if det.kind not in (STUCK_ON, FAIL_TO_FIRE, DEGRADED) or not self._window:
             return det
         d = self.detector
@@ -527,8 +528,7 @@ class FlightSoftware:
                     # the admitted errors: neither hypothesis holds (the detector's own rule
                     # for a fails-to-fire crossing). Seen in real time on kalman_cube: a
                     # "degraded" thruster at 105 % of its thrust.
-                    self._dismissed = True
-                    return None
+                    return NEITHER
                 kind = DEGRADED if frac >= d.cfg.fail_fraction else FAIL_TO_FIRE
                 who = i
                 rho = float(d.rho_on[i])
@@ -546,10 +546,9 @@ class FlightSoftware:
 
     def _settle(self, det: Detection | None, found: Detection | None) -> Detection | None:
         """Latch what the isolation named (``det``; while a probe runs, None: ``found`` is
-        held). Dismissed by the isolation (neither hypothesis holds): nothing is latched, the
+        held). ``NEITHER`` (neither hypothesis of the pair holds): nothing is latched, the
         residuals and the leak test restart on the next ticks."""
-        if self._dismissed:
-            self._dismissed = False
+        if det is NEITHER:
             self.detector.rebaseline(hold_ticks=0)
             self._window = []
             self._probe = None
