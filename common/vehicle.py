@@ -276,6 +276,10 @@ class DetectorCfg(_Model):
             raise _FieldError("relative_dead_zone_sigma", "none when effectiveness_bound is 0 "
                               "(the dead zone is the learning's uncertainty)",
                               self.relative_dead_zone_sigma)
+        if self.relative_dead_zone_memory > 0.0 and self.relative_dead_zone_across is not None:
+            raise _FieldError("relative_dead_zone_memory", "0 with relative_dead_zone_across "
+                              "(it keeps the spherical dead zone's commanded effect)",
+                              self.relative_dead_zone_memory)
         if self.relative_dead_zone_memory > 0.0 and self.relative_dead_zone <= 0.0:
             raise _FieldError("relative_dead_zone_memory", "0 when relative_dead_zone is 0 "
                               "(it keeps that dead zone's commanded effect)",

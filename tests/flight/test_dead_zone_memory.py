@@ -78,6 +78,14 @@ def test_memory_without_a_relative_dead_zone_is_refused() -> None:
                                               "relative_dead_zone_memory": 0.5}})
 
 
+def test_memory_with_the_ellipsoidal_dead_zone_is_refused() -> None:
+    """The ellipsoid takes each thruster's own effect, not the kept sum: the memory would be
+    accepted and ignored there."""
+    with pytest.raises(ConfigError, match=r"relative_dead_zone_memory: expected 0 with "
+                                          r"relative_dead_zone_across.*got 0\.8"):
+        load_vehicle("kalman_cube", {"detector": {"relative_dead_zone_memory": 0.8}})
+
+
 def _run(tmp_path: Path, campaign: str, run: int, memory: float | None = None,
          nominal_flex: bool = False):
     c = load_campaign(CONFIG_DIR / "campaigns" / f"{campaign}.yaml")
