@@ -122,6 +122,9 @@ def opposite_matrix(e_B: np.ndarray, opposite_deg: float) -> np.ndarray:
 
 # Ticks of a thruster's own burns the reported thrust fraction is the mean of.
 _FRACTION_TICKS = 3
+# Burns kept per thruster for ``Effectiveness.fraction_since`` (a detection's evidence window
+# is at most a few seconds of ticks; a thruster burns on some of them).
+_FRACTION_KEPT = 16
 # The absolute dead zone widens in proportion to the sensor noise when the quiet ticks show
 # more than its long-run level (GyroCheck.noise_ratio), so a noisier gyro does not read as
 # thrusters. Relative, not absolute: a vehicle's residual on quiet ticks holds more than its
@@ -203,7 +206,9 @@ class Effectiveness:
             raise ValueError(f"common_share: expected a value in [0, 1), got {common_share}")
         self.P[:n, :n] += float(common_share) * p0 * (np.ones((n, n)) - np.eye(n))
         self._trusted = (self.x.copy(), self.P.copy())
-        self._recent: list[list[float]] = [[] for _ in range(n)]
+        # Per thruster: (update count, thrust over nominal) of its last burns (``fraction``).
+        self._recent: list[list[tuple[int, float]]] = [[] for _ in range(n)]
+        self.updates = 0  # calls of ``update`` so far: the stamp of the next one's burns
 
     @property
     def theta(self) -> np.ndarray:
@@ -239,8 +244,17 @@ class Effectiveness:
         out = self.theta.copy()
         for j, hist in enumerate(self._recent):
             if hist:
-                out[j] = float(np.mean(hist))
+                out[j] = float(np.mean([f for _, f in hist[-_FRACTION_TICKS:]]))
         return np.clip(out, 0.0, 1.5)
+
+    def fraction_since(self, j: int, stamp: int) -> float:
+        """``fraction[j]`` from the burns of updates ``stamp`` and later only (a detection's
+        evidence window: the burns before the fault say nothing of what is left); ``theta``
+        when there was none. With a 30 ms actuation phase a burn spills past the next sample,
+        and the last three burns of a thruster that failed to fire still held one from before
+        the fault (105 %): it read 27 % and was named degraded."""
+        since = [f for t, f in self._recent[j] if t >= stamp][-_FRACTION_TICKS:]
+        return float(np.clip(np.mean(since) if since else self.theta[j], 0.0, 1.5))
 
     def update(self, residual_B_rad_s: np.ndarray, eff_s: np.ndarray, use: np.ndarray,
                deff_dlat: np.ndarray | None = None) -> None:
@@ -268,11 +282,13 @@ class Effectiveness:
             cols = np.concatenate([cols, [2 * n]])
             H = np.concatenate([H, g[:, None]], axis=1)
         big = np.linalg.norm(self.mu, axis=1) * e >= 2.0 * math.sqrt(self.r_var)
+        stamp = self.updates
+        self.updates += 1
         for j in np.flatnonzero(burn & big):
             phi = self.mu[j] * e[j]
             hist = self._recent[j]
-            hist.append(float(k_used[j] + phi @ r / (phi @ phi)))
-            del hist[:-_FRACTION_TICKS]
+            hist.append((stamp, float(k_used[j] + phi @ r / (phi @ phi))))
+            del hist[:-_FRACTION_KEPT]
         if self.bound <= 0.0:
             return  # learning off: only the measured fraction above
         d = np.diag_indices(len(self.x))

@@ -183,7 +183,7 @@ class FlightSoftware:
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
         # (observer residual, burns, outside the dead zone, raw residual) of the last ticks
-        self._window: list[tuple[np.ndarray, np.ndarray, bool, np.ndarray]] = []
+        self._window: list[tuple[np.ndarray, np.ndarray, bool, np.ndarray, int]] = []
         # Commanded effect kept for the relative dead zone (detector.relative_dead_zone_memory).
         self._commanded_kept = 0.0
         # (detection held back, the pair left out of the allocation, ticks left) while probing
@@ -395,7 +395,8 @@ class FlightSoftware:
         if not out.held and pred.eff_s is not None:
             self._window.append((np.asarray(dw, dtype=float), np.asarray(pred.eff_s, float),
                                  not out.dead_zone,
-                                 np.asarray(dw if raw is None else raw, dtype=float)))
+                                 np.asarray(dw if raw is None else raw, dtype=float),
+                                 self.effectiveness.updates))
             del self._window[:-_ISOLATION_TICKS]
             if self._probe is not None:
                 held_det, pair, left = self._probe
@@ -445,7 +446,7 @@ class FlightSoftware:
                 self._probe = (None, (int(i), int(j)), _PROBE_TICKS)
                 return
 
-    def _evidence_window(self) -> list[tuple[np.ndarray, np.ndarray, bool, np.ndarray]]:
+    def _evidence_window(self) -> list[tuple[np.ndarray, np.ndarray, bool, np.ndarray, int]]:
         """The window's ticks from the first one outside the dead zone on: the ticks before the
         fault say nothing of it."""
         first = next((k for k, w in enumerate(self._window) if w[2]), 0)
@@ -521,7 +522,7 @@ class FlightSoftware:
                 self._probe = (det, (i, j), _PROBE_TICKS)
                 return None
             if det.kind == STUCK_ON and ratio > need:
-                frac = float(self.effectiveness.fraction[i])
+                frac = self.effectiveness.fraction_since(i, win[0][4])
                 eff_bound = self.effectiveness.bound
                 if eff_bound > 0.0 and frac >= 1.0 - eff_bound:
                     # The deficit of i fits better, but i's own burns show its thrust within

@@ -16,9 +16,10 @@ from typing import Literal
 from bus.catalog import CATALOG, HEARTBEAT_PERIOD_S
 
 # Real time: THR_CMD(n) takes effect this long after its tick's gyro sample went out
-# (time-triggered actuation, docs/design.md section 3; 0: on arrival). Opt-in
-# (--actuation-phase-ms 30): with 30 ms, a real-time fails-to-fire over LCM was named degraded.
-REALTIME_ACTUATION_PHASE_MS = 0.0
+# (time-triggered actuation, docs/design.md section 3; 0: on arrival, --actuation-phase-ms 0).
+# Sample-to-command is 4-9 ms typically inside user-mode Linux with bursts of 20-35 ms; on
+# arrival, kalman_cube read those bursts as thrust errors (S002-15/50/100 in real time).
+REALTIME_ACTUATION_PHASE_MS = 30.0
 # A phase must leave the command inside its frame's deadline (half a tick).
 ACTUATION_PHASE_MAX_MS = 1000.0 * CATALOG.frame("THR_CMD_0").deadline_s
 

@@ -36,11 +36,12 @@ def _set_up(fraction: float) -> tuple[FlightSoftware, Detection]:
             dw = -0.5 * mu_abs[i] * 0.2 * d.e_B[i]
         else:
             dw = np.zeros(3)
-        window.append((dw, eff, bool(t % 2 == 0), dw))
+        window.append((dw, eff, bool(t % 2 == 0), dw, fs.effectiveness.updates))
     fs._window = window
     d.rho_on[i] = -1.1 * d.thresholds_on[i]
     d.rho_off[j] = 1.05 * d.thresholds_off[j]
-    fs.effectiveness._recent[i] = [fraction] * 3
+    # Z-'s burns in the window (stamped with the update they came from)
+    fs.effectiveness._recent[i] = [(fs.effectiveness.updates, fraction)] * 3
     det = Detection(tick=10, thruster=j, kind=STUCK_ON, group=(j,), names=("Z+",), rho=1.0)
     return fs, det
 
