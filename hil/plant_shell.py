@@ -426,6 +426,10 @@ class PlantShell:
                     verdict = gate.judge(msg.tick, t_meas, rx_sim)
                     if verdict != "fresh":  # counted, never applied, not a sign of life
                         self.dropped_command(msg, verdict, rx_sim, t_meas)
+                        # The flight's model fired it and the plant did not: like a late one,
+                        # the next two samples say so (one was not enough: a full-tick burn
+                        # dropped shows in the second sample after it too).
+                        self.late_until_s = max(self.late_until_s, rx_sim + 2.0 * self.h)
                         continue
                 self.events.extend(watch.on_message(msg, rx_sim))
                 if isinstance(msg, FaultCmd):

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from bus.catalog import Node, NodeState
+from bus.catalog import GyroStatus, Node, NodeState
 from bus.codec import FdirStatus, Frame, Gyro, Heartbeat, ThrCmd
 from bus.transport import BusConfig, Port, open_bus
 from hil.config import load_scenario
@@ -358,6 +358,56 @@ def test_realtime_stale_and_out_of_order_commands_are_dropped_and_counted(tmp_pa
     t_stale = next(t for w, t in log if w == "stale")
     assert t_safe < t_back and t_back > t_stale + 0.2, (events, log)
     assert "(3 fresh ticks in a row)" in next(e for _, e in events if "leaving safe" in e)
+
+
+def test_realtime_a_dropped_stale_command_flags_the_next_two_samples(tmp_path) -> None:
+    """A fresh command every tick but one, which is computed from an old sample and dropped as
+    stale: the flight's model fired that tick and the plant did not, so the next two GYRO
+    samples say CMD_NOT_APPLIED (the flight keeps those ticks out of its evidence). Only the
+    first one said so before: in a 720 s real-time run a dropped full-tick command showed in the
+    second sample too and read as a gyro bias step."""
+    shell, flight, out = _plant_bench(
+        tmp_path, "safety: {thr_cmd_lost_ticks: 5, heartbeat_lost_s: 1.0}\n", 2.4, "realtime")
+    done = threading.Event()
+    samples: list[tuple[float, int]] = []  # (arrival, status) of every GYRO sample
+    sent: list[tuple[str, float]] = []
+
+    def fake_flight() -> None:
+        t0 = time.monotonic()
+        k, first = 0, None
+        while not done.is_set() and time.monotonic() - t0 < 2.2:
+            flight.send(Heartbeat(Node.FLIGHT, NodeState.RUN))
+            t_end = time.monotonic() + 0.3
+            got = None
+            while got is None and time.monotonic() < t_end:
+                for msg, _ in flight.poll(max(0.0, t_end - time.monotonic())):
+                    if isinstance(msg, Gyro):
+                        got = msg
+                        break
+            if got is None:
+                continue
+            now = time.monotonic() - t0
+            samples.append((now, int(got.status)))
+            first = got.sample_seq if first is None else first
+            if 1.0 <= now and not any(w == "stale" for w, _ in sent):
+                flight.send(ThrCmd(k, (20,) * 6, 1, first))  # from the first sample: stale
+                sent.append(("stale", now))
+            else:
+                flight.send(ThrCmd(k, (20,) * 6, 1, got.sample_seq))
+                sent.append(("fresh", now))
+            k += 1
+
+    _run_realtime_with(shell, flight, fake_flight, done)
+    assert shell.gate.counts["stale"] == 1, (shell.gate.counts, sent)
+    t_stale = next(t for w, t in sent if w == "stale")
+    flagged = [bool(st & GyroStatus.CMD_NOT_APPLIED) for t, st in samples if t > t_stale]
+    assert len(flagged) >= 3, (samples, sent)
+    # The two samples after the dropped command are flagged, the third (after a fresh command
+    # applied in time) is evidence again.
+    assert flagged[:3] == [True, True, False], (samples, sent)
+    events = [e for r in read_jsonl(out / "plant.jsonl") for e in r.get("events", [])]
+    assert any("dropped: stale" in e for e in events), events
+    assert not any(e.startswith("safe:") for e in events), events
 
 
 def test_command_gate_classes_and_recovery() -> None:
