@@ -295,6 +295,12 @@ class FlightSoftware:
                 inc = self.arrays.mu_B_rad_s2 * (self.effectiveness.k * pred.eff_s)[:, None]
             verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s, inc,
                                            self._obs.innovation_B_rad_s)
+            latched = self.detector.latched
+            if verdict.fault is not None and latched is not None and latched.kind != GYRO_FAULT:
+                # Single fault: a thruster fault is latched and not yet answered, so the rate
+                # moving without the model is that thruster, not a second (sensor) fault. The
+                # tick stays out of the evidence as the check says; only the naming is dropped.
+                verdict = replace(verdict, fault=None)
             pred = self._remembered(pred)
             self.detector.noise_ratio = self.gyro_check.noise_ratio()
             dw = w_hat - self._omega_pred
