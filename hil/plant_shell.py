@@ -81,6 +81,10 @@ class PlantShell:
         # Whether the flight's last command was applied as sent; the next GYRO says so
         # (GyroStatus.CMD_NOT_APPLIED) and the flight keeps that tick out of its evidence.
         self.cmd_applied = True
+        # A flagged sample is followed by one more: at the flagged tick the flight restarts its
+        # onboard model from the measurement, believing the unapplied command burnt (its carry
+        # into the next interval too), so the next tick's prediction is no evidence either.
+        self.flag_next = False
         # Real time, time-triggered: a command that came after its actuation time is applied on
         # arrival, and the GYRO samples until this time say CMD_NOT_APPLIED.
         self.late_until_s = -math.inf
@@ -182,8 +186,9 @@ class PlantShell:
             if t_pub_s is not None:
                 self.gyro_pub[seq] = t_pub_s
             g = gyro_message(s)
-            if not self.cmd_applied:
+            if not self.cmd_applied or self.flag_next:
                 g = replace(g, status=g.status | GyroStatus.CMD_NOT_APPLIED)
+            self.flag_next = not self.cmd_applied
             self.last_gyro = g
             out.append(g)
         if len(self.gyro_time) > 4096:
@@ -395,8 +400,9 @@ class PlantShell:
                     now - self.last_cmd_tick_s >= self.h + THR_CMD_DEADLINE_S:
                 held = self.missing_command(self.last_applied.tick + 1, self.last_applied)
                 self.apply(held, now + cmd_latency, as_sent=False)
-                # The flight's model has no such burn: the next two samples are no evidence.
-                self.late_until_s = now + cmd_latency + 2.0 * self.h
+                # The flight's model has no such burn: the next sample is no evidence (and the
+                # one after it, see flag_next).
+                self.late_until_s = now + cmd_latency + self.h
             # Publish first: the flight is waiting for this sample.
             ready = self.plant.gyro_samples_until(now)
             if ready:
@@ -426,10 +432,6 @@ class PlantShell:
                     verdict = gate.judge(msg.tick, t_meas, rx_sim)
                     if verdict != "fresh":  # counted, never applied, not a sign of life
                         self.dropped_command(msg, verdict, rx_sim, t_meas)
-                        # The flight's model fired it and the plant did not: like a late one,
-                        # the next two samples say so (one was not enough: a full-tick burn
-                        # dropped shows in the second sample after it too).
-                        self.late_until_s = max(self.late_until_s, rx_sim + 2.0 * self.h)
                         continue
                 self.events.extend(watch.on_message(msg, rx_sim))
                 if isinstance(msg, FaultCmd):
@@ -450,9 +452,9 @@ class PlantShell:
                         self.apply(msg, t_apply)
                         self.held_ticks = 0
                         if late:
-                            # Its burn, and the tail it spills past the next sample, are not
-                            # where the flight's model put them: the next two samples say so.
-                            self.late_until_s = t_apply + 2.0 * self.h
+                            # Its burn is not where the flight's model put it: the next
+                            # sample says so (and the one after it, see flag_next).
+                            self.late_until_s = t_apply + self.h
                             self.late_actuations += 1
                     if t_meas is not None:
                         s2a.append(t_apply - t_meas)

@@ -410,6 +410,30 @@ def test_realtime_a_dropped_stale_command_flags_the_next_two_samples(tmp_path) -
     assert not any(e.startswith("safe:") for e in events), events
 
 
+def test_a_flagged_sample_is_followed_by_one_more(tmp_path) -> None:
+    """At a flagged tick the flight restarts its onboard model from the measurement, believing
+    the unapplied command burnt, so the next tick's prediction is no evidence either: the plant
+    flags one more sample after every flagged run. In a 720 s real-time S002-100 the first sample
+    after the plant left a safe state was evidence and read as a gyro bias step (the model
+    carried the un-burnt command's tail into it)."""
+    shell, flight, out = _plant_bench(tmp_path, "", 2.0, "lockstep")
+    applied = [True, True, False, True, True, False, False, True, True]
+    flags: list[bool] = []
+    try:
+        shell.plant.advance_to(0.1)
+        shell.gyro_messages(shell.plant.gyro_samples_until(0.1))  # the sample at 0
+        for k, a in enumerate(applied):
+            t = 0.2 * (k + 1)
+            shell.plant.advance_to(t)
+            shell.cmd_applied = a
+            msgs = shell.gyro_messages(shell.plant.gyro_samples_until(t))
+            flags += [bool(g.status & GyroStatus.CMD_NOT_APPLIED) for g in msgs]
+    finally:
+        shell.port.close()
+        flight.close()
+    assert flags == [False, False, True, True, False, True, True, True, False], flags
+
+
 def test_command_gate_classes_and_recovery() -> None:
     from hil.safe_states import CommandGate
 
