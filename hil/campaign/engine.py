@@ -107,6 +107,23 @@ def _commands_after(spec: RunSpec, col: _Collector) -> tuple[int, float | None] 
     return ticks, first
 
 
+def _open_throughout(spec: RunSpec, col: _Collector) -> bool | None:
+    """For a stuck-on fault: whether its thruster was commanded on for the whole tick at every
+    tick acting after the fault (its valve was open anyway: the fault changed nothing the
+    plant could show); None for other faults, or no tick after the fault."""
+    f = spec.fault
+    if not f or f.get("kind") != "stuck_on" or f.get("thruster") is None or not col.on_ms:
+        return None
+    names = [t["name"] for t in spec.vehicle["thrusters"]]
+    i = names.index(f["thruster"])
+    h = float(spec.vehicle["timing"]["tick_s"])
+    lat = float((spec.scenario.get("plant") or {}).get("command_latency_ms", 0.0)) / 1000.0
+    after = [on[i] for n, on in enumerate(col.on_ms) if n * h + lat + h > f["t_s"] + 1e-9]
+    if not after:
+        return None
+    return all(float(v) >= h * 1000.0 - 1e-6 for v in after)
+
+
 def run_task(task: Task) -> dict[str, Any]:
     """Run one task and return its row (never raises for a run's own failure)."""
     from hil.config import load_scenario
@@ -124,7 +141,8 @@ def run_task(task: Task) -> dict[str, Any]:
         cmds = _commands_after(spec, col)
         row = classify(spec, res.summary, commanded_after=None if cmds is None else cmds[0] > 0,
                        commanded_ticks=None if cmds is None else cmds[0],
-                       first_command_s=None if cmds is None else cmds[1])
+                       first_command_s=None if cmds is None else cmds[1],
+                       open_throughout=_open_throughout(spec, col))
     except Exception as exc:  # noqa: BLE001 - a run that raises is a row, not a crash
         tb = traceback.extract_tb(exc.__traceback__)
         where = f"{Path(tb[-1].filename).name}:{tb[-1].lineno}" if tb else "?"

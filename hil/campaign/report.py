@@ -144,8 +144,9 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
         L += [f"**Incomplete campaign:** {runs_planned - len(rows)} runs have no row yet; "
               f"run the same command again to compute them.", ""]
     L += ["Rates are exact binomial (Clopper-Pearson) 95 % intervals. Failed runs (error, "
-          "incomplete summary) are in no rate; unobservable runs (the faulty thruster was "
-          "never commanded after the fault) are in no missed-detection rate.", ""]
+          "incomplete summary) are in no rate; unobservable runs (a thruster that fails to "
+          "fire or is degraded never commanded after the fault, or a stuck-on one commanded "
+          "on for the whole of every tick after it) are in no missed-detection rate.", ""]
     for veh, vs in stats["by_vehicle"].items():
         L += [f"## {veh}", ""]
         if "none" in vs:

@@ -8,10 +8,11 @@ correct or not by the summary itself, so new detection types need nothing here.
 * run with a fault: ``detected`` (a correct detection; ``detected_as`` ``exact`` or ``group``
   when it named a group holding the thruster), ``unobservable`` (no correct detection, and a
   fault that needs its thruster commanded, such as fails-to-fire, whose thruster was never
-  commanded after the fault: nothing could be seen), ``misidentified`` (detections after the
-  fault, none correct), ``missed`` (no detection after the fault), ``unjudged`` (the summary
-  does not judge this fault: it has no thruster). Detections before the fault time are counted
-  as ``false_alarms_before_fault``;
+  commanded after the fault: nothing could be seen; and a stuck-on whose thruster was
+  commanded on for the whole tick at every tick after the fault: its valve was open anyway),
+  ``misidentified`` (detections after the fault, none correct), ``missed`` (no detection after
+  the fault), ``unjudged`` (the summary does not judge this fault: it has no thruster).
+  Detections before the fault time are counted as ``false_alarms_before_fault``;
 * ``error`` (the run raised; ``error`` holds it) and ``incomplete`` (the summary lacks ticks,
   the fault or a field; ``reason`` says which): failures, never a pass, left out of every rate
   and counted.
@@ -110,10 +111,12 @@ def _incomplete(spec: Any, s: dict[str, Any]) -> str | None:
 
 def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool | None = None,
              error: str | None = None, commanded_ticks: int | None = None,
-             first_command_s: float | None = None) -> dict[str, Any]:
+             first_command_s: float | None = None,
+             open_throughout: bool | None = None) -> dict[str, Any]:
     """The row of one run (module doc); ``spec`` is its ``RunSpec``. ``commanded_ticks`` and
     ``first_command_s``: ticks with the faulty thruster commanded after the fault and the time
-    the first of them acted (faults seen only when their thruster fires)."""
+    the first of them acted (faults seen only when their thruster fires); ``open_throughout``:
+    a stuck-on thruster commanded on for the whole of every tick after the fault."""
     f = spec.fault
     row: dict[str, Any] = {
         "run": spec.run, "name": spec.name, "vehicle": spec.vehicle["name"],
@@ -169,6 +172,10 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
     elif commanded_after is False:
         row["verdict"] = "unobservable"
         row["reason"] = "the thruster was never commanded after the fault"
+    elif open_throughout and f["kind"] == "stuck_on":
+        row["verdict"] = "unobservable"
+        row["reason"] = "the thruster was commanded on for the whole of every tick after the " \
+                        "fault (its valve was open anyway)"
     elif after:
         row["verdict"] = "misidentified"
     else:

@@ -200,6 +200,37 @@ def test_commands_after_the_fault_are_counted_from_the_ticks_on_times() -> None:
                                                 "t_s": 0.45}), col) is None
 
 
+def test_a_stuck_on_thruster_open_at_every_tick_after_the_fault_is_unobservable() -> None:
+    """A stuck valve that the controller holds open for the whole of every tick after the fault
+    changes nothing the plant can show (hand-made ticks; the engine's rule, then the verdict)."""
+    import numpy as np
+
+    from hil.campaign.engine import _Collector, _open_throughout
+
+    fault = {"kind": "stuck_on", "thruster": "B", "t_s": 0.45}
+    spec = replace(SPEC, scenario={"duration_s": 1.2, "plant": {"command_latency_ms": 10.0}},
+                   fault=fault)
+    col = _Collector(record=False)
+    # B (index 1): 100 ms at tick 0 and 1 (acting before the fault: not counted), then the
+    # whole tick at ticks 2-5 (tick 2 acts 0.41-0.61, across the fault).
+    for on_b in (100, 100, 200, 200, 200, 200):
+        col.on_ms.append(np.array([0, on_b], dtype=np.int16))
+    assert _open_throughout(spec, col) is True
+    col.on_ms[4] = np.array([0, 190], dtype=np.int16)  # one tick with 10 ms off: observable
+    assert _open_throughout(spec, col) is False
+    assert _open_throughout(replace(spec, fault={**fault, "kind": "fail_to_fire"}), col) is None
+    summ = _summary(faults=[{"t_s": 0.45, "thruster": "B", "type": "stuck_on"}],
+                    missed_faults=[{"t_s": 0.45, "thruster": "B", "type": "stuck_on"}],
+                    ticks=6, flight_ticks=6)
+    r = classify(spec, summ, open_throughout=True)
+    assert r["verdict"] == "unobservable" and "whole of every tick" in r["reason"]
+    assert classify(spec, summ, open_throughout=False)["verdict"] == "missed"
+    det = {"t_s": 0.8, "thruster": "B", "type": "stuck_on", "latency_s": 0.35, "correct": True}
+    assert classify(spec, _summary(detections=[det], missed_faults=[], faults=summ["faults"],
+                                   ticks=6, flight_ticks=6),
+                    open_throughout=True)["verdict"] == "detected"
+
+
 def test_a_degraded_detection_carries_its_fraction_error_and_the_goal_counts_the_tolerance(
         ) -> None:
     spec = replace(SPEC, fault={"kind": "degraded", "thruster": "A", "t_s": 4.0,
