@@ -88,16 +88,22 @@ class _Collector:
             self.available.append(np.asarray(out.available, dtype=bool).copy())
 
 
+def _command_timing(spec: RunSpec) -> tuple[int, float, float]:
+    """The faulty thruster's index, the tick (s) and the plant's command latency (s): a tick
+    n's command acts from ``n h + latency``."""
+    names = [t["name"] for t in spec.vehicle["thrusters"]]
+    h = float(spec.vehicle["timing"]["tick_s"])
+    lat = float((spec.scenario.get("plant") or {}).get("command_latency_ms", 0.0)) / 1000.0
+    return names.index(spec.fault["thruster"]), h, lat
+
+
 def _commands_after(spec: RunSpec, col: _Collector) -> tuple[int, float | None] | None:
     """Ticks on which the faulty thruster had a command acting after the fault time, and the
     plant time that first such command started to act (None: the fault needs no command)."""
     f = spec.fault
     if not needs_command(f) or not col.on_ms:
         return None
-    names = [t["name"] for t in spec.vehicle["thrusters"]]
-    i = names.index(f["thruster"])
-    h = float(spec.vehicle["timing"]["tick_s"])
-    lat = float((spec.scenario.get("plant") or {}).get("command_latency_ms", 0.0)) / 1000.0
+    i, h, lat = _command_timing(spec)
     ticks, first = 0, None
     for n, on in enumerate(col.on_ms):
         if on[i] > 0 and n * h + lat + on[i] / 1000.0 > f["t_s"] + 1e-9:
@@ -114,10 +120,7 @@ def _open_throughout(spec: RunSpec, col: _Collector) -> bool | None:
     f = spec.fault
     if not f or f.get("kind") != "stuck_on" or f.get("thruster") is None or not col.on_ms:
         return None
-    names = [t["name"] for t in spec.vehicle["thrusters"]]
-    i = names.index(f["thruster"])
-    h = float(spec.vehicle["timing"]["tick_s"])
-    lat = float((spec.scenario.get("plant") or {}).get("command_latency_ms", 0.0)) / 1000.0
+    i, h, lat = _command_timing(spec)
     after = [on[i] for n, on in enumerate(col.on_ms) if n * h + lat + h > f["t_s"] + 1e-9]
     if not after:
         return None
