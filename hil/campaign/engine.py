@@ -285,10 +285,14 @@ class Executor:
         # another one and says so; nothing to tell the user.
         warnings.filterwarnings("ignore", message="Port .* is already in use")
         if self.scheduler is None:
+            # The worker processes log at CRITICAL only: what fails in a worker reaches the
+            # campaign through its futures (a lost task is counted), while its log lines are
+            # shutdown noise, such as a heartbeat that finds the scheduler closed after a
+            # Ctrl-C (an ERROR with a traceback, on the user's terminal).
             with _sigint_ignored():
                 self.cluster = LocalCluster(
                     n_workers=self.workers, threads_per_worker=1, processes=True,
-                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR)
+                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.CRITICAL)
             self.client = Client(self.cluster)
         else:
             try:
