@@ -51,6 +51,10 @@ from flight.lp import (
 )
 from flight.quantise import PulseSet, Quantiser
 
+# Halvings of the translation fraction in :meth:`Allocator.allocate_trim`: the tick's share of
+# the remaining delta-v is found to 1/32 of the remainder (at most 7 LPs in a trim tick).
+TRIM_STEPS = 5
+
 # --------------------------------------------------------------------------- results
 
 
@@ -322,6 +326,75 @@ class Allocator:
         lp = self.solve_lp(dw_down_B_rad_s, dw_up_B_rad_s, av, dv_down_B_m_s, dv_up_B_m_s)
         mode = "attitude" if dv_down_B_m_s is None and dv_up_B_m_s is None else "translation"
         return self._finish(lp.tau_eff_s, av, lp.feasible, lp.status, lp.scale, mode, lp.solver)
+
+    def allocate_trim(
+        self,
+        dw_down_B_rad_s: np.ndarray,
+        dw_up_B_rad_s: np.ndarray,
+        available: np.ndarray | None,
+        dv_remaining_B_m_s: np.ndarray,
+        tol_m_s: float,
+        steps: int = TRIM_STEPS,
+    ) -> Allocation:
+        """Orbit correction's trim: what is left of the delta-v, with attitude first.
+
+        Asked for the whole remainder in one tick (``rem +/- tol/2`` per axis), the 6-row LP is
+        infeasible within the tick bound whenever the remainder is more than a tick can give,
+        and its scaled solution (seed 004 section 3) keeps the direction of the combined
+        demand: the rate demand shrinks with the translation's scale, and attitude goes unheld
+        for as long as the trim lasts. Here each axis whose remainder is outside ``tol/2`` asks
+        this tick for at least ``f`` times the axis's one-tick capacity ``c_i`` (every available
+        thruster pushing that way for the whole tick; at most the remainder) and at most the
+        remainder plus ``tol/2``; axes already within ``tol/2`` stay within it. ``f`` is the
+        largest value in ``[0, 1]`` (bisection, ``steps`` halvings) whose LP meets the rate
+        demand within the tick; the rest of the delta-v is left to the next ticks. At ``f = 0``
+        the translation rows ask for nothing; when even that cannot be met, the attitude-only
+        allocation of :meth:`allocate` (scaled or best effort as usual)."""
+        av = self._all_on if available is None else np.asarray(available, dtype=bool)
+        rem = np.asarray(dv_remaining_B_m_s, dtype=float)
+        half = 0.5 * float(tol_m_s)
+        sign = np.sign(rem)
+        active = np.abs(rem) > half
+        push = np.clip(sign[None, :] * self.acc[av], 0.0, None).sum(axis=0) * self.tau_max_s
+        cap = np.where(active, np.minimum(push, np.abs(rem)), 0.0)
+        far = np.where(active, rem + sign * half, rem + half)
+        near_fixed = np.where(active, 0.0, rem - half)
+
+        def solve(f: float) -> tuple[np.ndarray, str] | None:
+            near = np.where(active, sign * f * cap, near_fixed)
+            return self._within_tick(dw_down_B_rad_s, dw_up_B_rad_s, av,
+                                     np.minimum(near, far), np.maximum(near, far))
+
+        got = solve(1.0)
+        if got is None:
+            got = solve(0.0)
+            if got is None:
+                return self.allocate(dw_down_B_rad_s, dw_up_B_rad_s, av)
+            lo_f, hi_f = 0.0, 1.0
+            for _ in range(steps):
+                mid = 0.5 * (lo_f + hi_f)
+                trial = solve(mid)
+                if trial is not None:
+                    lo_f, got = mid, trial
+                else:
+                    hi_f = mid
+        tau, solver = got
+        return self._finish(tau, av, True, "optimal", 1.0, "translation", solver)
+
+    def _within_tick(self, lo, hi, av: np.ndarray, dv_lo, dv_hi) -> tuple[np.ndarray, str] | None:
+        """The 6-row LP of :meth:`solve_lp` within the tick bound only: the optimal effective
+        times (N,) and the solver, or None when the bounds cannot be met within the tick (no
+        scaled or best-effort solve: the caller only asks whether they can)."""
+        lo6 = np.concatenate((np.asarray(lo, float), np.asarray(dv_lo, float)))
+        hi6 = np.concatenate((np.asarray(hi, float), np.asarray(dv_hi, float)))
+        cols = self._all_cols if av.all() else np.flatnonzero(av)
+        rs = self._row_scale6
+        st, x, _, used = self._solve_main(6, lo6 / rs, hi6 / rs, self._ub_tick[: len(cols)], cols)
+        if st != OPTIMAL:
+            return None
+        tau = np.zeros(self.n)
+        tau[cols] = x * self.h_s
+        return tau, used
 
     # ------------------------------------------------------------------ orbit correction
 

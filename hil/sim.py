@@ -44,21 +44,34 @@ class SimRun:
 
 
 def simulate(sc: Scenario | str | Path, *, keep: bool = False,
-             on_tick: Callable[[int, Any, Any], None] | None = None) -> SimRun:
-    """Run scenario ``sc`` to its end in this process; see the module doc."""
+             on_tick: Callable[[int, Any, Any], None] | None = None,
+             actuation_phase_s: float = 0.0) -> SimRun:
+    """Run scenario ``sc`` to its end in this process; see the module doc.
+
+    ``actuation_phase_s``: every command takes effect that much later than in lockstep, as in
+    real time (``NodeSettings.actuation_phase_s``): the plant applies THR_CMD(n) at ``t_n``
+    plus the command latency plus the phase, and the flight is built as its real-time shell
+    builds it (onboard model and controller lead told of the phase), so a real-time run's
+    actuation timing can be reproduced bit for bit in this process."""
     from flight.attitude import error_quaternion
     from flight.software import FlightSoftware
+    from hil.flight_shell import with_actuation_phase
     from plant.core import Plant
 
     if not isinstance(sc, Scenario):
         sc = load_scenario(sc)
     cfg, v = sc.cfg, sc.vehicle
     h = v.timing.tick_s
+    phase = float(actuation_phase_s)
+    if not 0.0 <= phase < h:
+        raise ValueError(f"simulate: actuation_phase_s: expected 0 <= s < the tick {h}, "
+                         f"got {actuation_phase_s}")
     plant = Plant(v, seed=cfg.seed, overrides=cfg.plant, initial=cfg.initial)
     for f in cfg.faults:
         if not (f.kind.startswith("bus_") or f.kind == "node_silent"):
             plant.inject(f)
-    fs = FlightSoftware(v, target=cfg.target, initial_attitude=cfg.initial.attitude)
+    fs = FlightSoftware(with_actuation_phase(v, phase), target=cfg.target,
+                        initial_attitude=cfg.initial.attitude, lead_s=phase)
     names = plant.arrays.names
     target = cfg.target.quaternion()
     n_ticks = int(round(cfg.duration_s / h))
@@ -78,7 +91,7 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
         out = fs.step(n, omega)
         cmd = over_the_wire(thr_cmd(n, out, gyro.sample_seq if gyro else 0))
         on_ms, man = plant_command(cmd, len(out.manifold_open))
-        plant.apply_command(n, plant.apply_time(t_n), on_ms, man)
+        plant.apply_command(n, plant.apply_time(t_n) + phase, on_ms, man)
         plant.advance_to(t_n + h)
 
         tr = plant.truth
