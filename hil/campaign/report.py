@@ -151,10 +151,12 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
         L += [f"## {veh}", ""]
         if "none" in vs:
             st = vs["none"]
+            att = st.get("max_attitude_error_deg") or {"n": 0}
             L += ["| fault-free runs | completed | false-alarm rate [95 % CI] | first false "
-                  "alarm at (s) p50 / p90 / max |", "|---|---|---|---|",
+                  "alarm at (s) p50 / p90 / max | largest attitude error of a run (deg) p50 / "
+                  "p90 / max |", "|---|---|---|---|---|",
                   f"| {st['runs']} | {st['completed']} | {_fmt_rate(st['false_alarm'])} | "
-                  f"{_fmt_lat(st['first_false_alarm_s'])} |", ""]
+                  f"{_fmt_lat(st['first_false_alarm_s'])} | {_fmt_lat(att)} |", ""]
         fcls = [k for k in vs if k not in ("none", "all_faults")]
         if fcls:
             L += ["| fault class | runs | unobservable | observable | missed-detection rate "

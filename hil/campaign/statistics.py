@@ -214,6 +214,10 @@ def campaign_statistics(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 st["false_alarm"] = _rate(verdicts["false_alarm"], len(done))
                 st["first_false_alarm_s"] = _pct(
                     [r["detections"][0]["t_s"] for r in done if r["detections"]])
+                # Pointing: each fault-free run's largest attitude error against its target.
+                st["max_attitude_error_deg"] = _pct(
+                    [r["max_attitude_error_deg"] for r in done
+                     if r.get("max_attitude_error_deg") is not None])
             else:
                 judged = [r for r in done if r["verdict"] != "unjudged"]
                 obs = [r for r in judged if r["verdict"] != "unobservable"]

@@ -70,6 +70,17 @@ def test_rates_on_known_counts() -> None:
     assert len(campaign_statistics(rows)["failures"]) == 2
 
 
+def test_fault_free_pointing_is_summarised_over_completed_runs() -> None:
+    import numpy as np
+
+    att = [0.3, 0.5, 0.9, 0.4, 0.6]
+    rows = [_row(i, "none", "pass", max_attitude_error_deg=a) for i, a in enumerate(att)]
+    rows.append(_row(9, "none", "error", error="boom", max_attitude_error_deg=None))
+    got = campaign_statistics(rows)["by_vehicle"]["v"]["none"]["max_attitude_error_deg"]
+    assert got == {"n": 5, "p50": float(np.percentile(att, 50)),
+                   "p90": round(float(np.percentile(att, 90)), 3), "max": 0.9}
+
+
 SPEC = RunSpec(run=0, name="c-00000", scenario={"duration_s": 10.0}, vehicle={
     "name": "v", "timing": {"tick_s": 0.2}, "thrusters": [{"name": "A"}, {"name": "B"}]},
     vehicle_changed=False, vehicle_ref="v", params={},
