@@ -222,19 +222,10 @@ class Allocator:
 
     # ------------------------------------------------------------------ LP
 
-    def solve_lp(
-        self,
-        dw_down_B_rad_s: np.ndarray,
-        dw_up_B_rad_s: np.ndarray,
-        available: np.ndarray | None = None,
-        dv_down_B_m_s: np.ndarray | None = None,
-        dv_up_B_m_s: np.ndarray | None = None,
-    ) -> LpResult:
-        """Seed 004 eqs. (3.1)-(3.2) with the tick bound, scaling and best effort (module doc).
-
-        Bounds (3,) each, rad/s and m/s, may be infinite; ``available`` (N,) bool (all if None).
-        Translation rows are added when ``dv_down`` or ``dv_up`` is given.
-        """
+    def _scaled_bounds(self, dw_down_B_rad_s, dw_up_B_rad_s, available, dv_down_B_m_s,
+                       dv_up_B_m_s) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """The LP's rows (3, or 6 with translation), its scaled bounds and its columns (the
+        available thrusters), as :meth:`solve_lp` takes them."""
         lo = np.asarray(dw_down_B_rad_s, dtype=float)
         hi = np.asarray(dw_up_B_rad_s, dtype=float)
         rows = 3
@@ -251,7 +242,23 @@ class Allocator:
         else:
             cols = np.flatnonzero(av)
         rs = self._row_scale6[:rows]
-        lo_s, hi_s = lo / rs, hi / rs
+        return rows, lo / rs, hi / rs, cols
+
+    def solve_lp(
+        self,
+        dw_down_B_rad_s: np.ndarray,
+        dw_up_B_rad_s: np.ndarray,
+        available: np.ndarray | None = None,
+        dv_down_B_m_s: np.ndarray | None = None,
+        dv_up_B_m_s: np.ndarray | None = None,
+    ) -> LpResult:
+        """Seed 004 eqs. (3.1)-(3.2) with the tick bound, scaling and best effort (module doc).
+
+        Bounds (3,) each, rad/s and m/s, may be infinite; ``available`` (N,) bool (all if None).
+        Translation rows are added when ``dv_down`` or ``dv_up`` is given.
+        """
+        rows, lo_s, hi_s, cols = self._scaled_bounds(dw_down_B_rad_s, dw_up_B_rad_s, available,
+                                                     dv_down_B_m_s, dv_up_B_m_s)
         tmax = self.tau_max_s / self.h_s
         ub = self._ub_tick[: len(cols)]
         N = self.n
@@ -385,11 +392,8 @@ class Allocator:
         """The 6-row LP of :meth:`solve_lp` within the tick bound only: the optimal effective
         times (N,) and the solver, or None when the bounds cannot be met within the tick (no
         scaled or best-effort solve: the caller only asks whether they can)."""
-        lo6 = np.concatenate((np.asarray(lo, float), np.asarray(dv_lo, float)))
-        hi6 = np.concatenate((np.asarray(hi, float), np.asarray(dv_hi, float)))
-        cols = self._all_cols if av.all() else np.flatnonzero(av)
-        rs = self._row_scale6
-        st, x, _, used = self._solve_main(6, lo6 / rs, hi6 / rs, self._ub_tick[: len(cols)], cols)
+        rows, lo_s, hi_s, cols = self._scaled_bounds(lo, hi, av, dv_lo, dv_hi)
+        st, x, _, used = self._solve_main(rows, lo_s, hi_s, self._ub_tick[: len(cols)], cols)
         if st != OPTIMAL:
             return None
         tau = np.zeros(self.n)

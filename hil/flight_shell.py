@@ -64,19 +64,25 @@ def with_actuation_phase(vehicle, phase_s: float):
     return vehicle.model_copy(update={"flight": flight})
 
 
+def flight_software(sc: Scenario, phase_s: float):
+    """The scenario's ``FlightSoftware`` for commands that take effect ``phase_s`` after their
+    tick's sample: the onboard model expects them then (``with_actuation_phase``) and the
+    controller acts on the state at actuation (``lead_s``, the phase ahead of the sample). The
+    flight process and ``hil.sim.simulate`` both build the flight here."""
+    from flight.software import FlightSoftware
+
+    return FlightSoftware(with_actuation_phase(sc.vehicle, phase_s), target=sc.cfg.target,
+                          initial_attitude=sc.cfg.initial.attitude, lead_s=phase_s)
+
+
 class FlightShell:
     """Flight process: ``flight.software.FlightSoftware`` behind a CAN port."""
 
     def __init__(self, sc: Scenario, port: Port, out: Path, settings: NodeSettings) -> None:
-        from flight.software import FlightSoftware
-
         self.sc, self.port, self.settings = sc, port, settings
-        phase = settings.actuation_phase_s()
-        self.v = with_actuation_phase(sc.vehicle, phase)
+        self.fs = flight_software(sc, settings.actuation_phase_s())
+        self.v = self.fs.vehicle
         self.h = self.v.timing.tick_s
-        # The controller acts on the state at actuation (the phase ahead of the sample).
-        self.fs = FlightSoftware(self.v, target=sc.cfg.target,
-                                 initial_attitude=sc.cfg.initial.attitude, lead_s=phase)
         self.names = self.fs.arrays.names
         self.rec = JsonlWriter(out / "flight.jsonl")
         self.events: list[str] = []

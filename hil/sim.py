@@ -54,8 +54,7 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
     builds it (onboard model and controller lead told of the phase), so a real-time run's
     actuation timing can be reproduced bit for bit in this process."""
     from flight.attitude import error_quaternion
-    from flight.software import FlightSoftware
-    from hil.flight_shell import with_actuation_phase
+    from hil.flight_shell import flight_software
     from plant.core import Plant
 
     if not isinstance(sc, Scenario):
@@ -70,8 +69,7 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
     for f in cfg.faults:
         if not (f.kind.startswith("bus_") or f.kind == "node_silent"):
             plant.inject(f)
-    fs = FlightSoftware(with_actuation_phase(v, phase), target=cfg.target,
-                        initial_attitude=cfg.initial.attitude, lead_s=phase)
+    fs = flight_software(sc, phase)
     names = plant.arrays.names
     target = cfg.target.quaternion()
     n_ticks = int(round(cfg.duration_s / h))
