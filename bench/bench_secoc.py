@@ -1,6 +1,6 @@
 """SecOC cost per message (bus.secoc): the HMAC alone, and sign (sender, with the message
 already encoded, as ``Port.send`` does) and check (receiver: it encodes the decoded message
-again) of THR_CMD and FAULT_CMD, microseconds per message, on this machine. Prints figures;
+again) of THR_CMD, FAULT_CMD and GYRO, microseconds per message, on this machine. Prints figures;
 asserts nothing.
 
     .venv/bin/python bench/bench_secoc.py [--n 20000]
@@ -12,7 +12,7 @@ import argparse
 import time
 
 from bus.catalog import FaultAction, FaultKind
-from bus.codec import FaultCmd, ThrCmd, encode
+from bus.codec import FaultCmd, Gyro, ThrCmd, encode
 from bus.secoc import Authenticator, compute_mac
 
 
@@ -25,7 +25,8 @@ def main() -> None:
     for name, make in (("THR_CMD (12 thrusters)",
                         lambda k: ThrCmd(k, (3, 0, 20, 0, 5, 0, 0, 17, 0, 0, 3, 0), 7, k)),
                        ("FAULT_CMD", lambda k: FaultCmd(k % 256, FaultAction.INJECT,
-                                                        FaultKind.STUCK_ON, 1, 0.5, 0.0, None))):
+                                                        FaultKind.STUCK_ON, 1, 0.5, 0.0, None)),
+                       ("GYRO", lambda k: Gyro(k & 0xFFFF, (1e-3, -2e-3, 3e-4), 1))):
         msgs = [make(k + 1) for k in range(n)]
         plain = [encode(m) for m in msgs]
         t0 = time.perf_counter()

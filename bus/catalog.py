@@ -273,7 +273,7 @@ def _mac_frame(name: str, frame_id: int, sender: Node, receivers: tuple[Node, ..
     return FrameDef(
         name, frame_id, 0x1000 + frame_id, sender, receivers,
         (
-            _sig("key_lo", 12, 8, comment=f"low 8 bits of the {of} key (tick / request id)"),
+            _sig("key_lo", 12, 8, comment=f"low 8 bits of the {of} set key"),
             _sig("fresh_lo", 20, 16, comment="freshness value, low 16 bits"),
             _sig("mac", 36, 24, comment="HMAC-SHA256 truncated to 24 bits"),
         ),
@@ -349,6 +349,7 @@ CATALOG = Catalog(
             deadline_s=0.1,
             comment="lockstep: the plant (time master) starts tick n",
         ),
+        _mac_frame("SYNC_MAC", 0x081, Node.PLANT, (Node.FLIGHT, Node.PANEL), TICK_S, 0.1, "SYNC"),
         FrameDef(
             "THR_CMD_0",
             0x0A0,
@@ -421,6 +422,7 @@ CATALOG = Catalog(
             key_signal="sample_seq",
             comment="gyro sample, z, sequence and status; frame 1 of the GYRO set",
         ),
+        _mac_frame("GYRO_MAC", 0x112, Node.PLANT, (Node.FLIGHT,), GYRO_PERIOD_S, 0.05, "GYRO"),
         FrameDef(
             "FDIR_STATUS",
             0x140,
@@ -548,6 +550,9 @@ CATALOG = Catalog(
             comment="flight tick timing telemetry",
         ),
         *(_heartbeat(n) for n in Node),
+        *(_mac_frame(f"HEARTBEAT_{n.name}_MAC", 0x708 + int(n), n,
+                     tuple(m for m in _all if m != n), HEARTBEAT_PERIOD_S, HEARTBEAT_PERIOD_S,
+                     f"HEARTBEAT_{n.name}") for n in Node),
     )
 )
 

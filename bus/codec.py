@@ -481,18 +481,52 @@ class FaultCmdMac(ThrCmdMac):
     SET: ClassVar[str] = "FAULT_CMD_MAC"
 
 
+@dataclass(frozen=True)
+class SyncMac(ThrCmdMac):
+    """SYNC_MAC: the authenticator of SYNC (fields as ``ThrCmdMac``; key and freshness from
+    the tick, as THR_CMD)."""
+
+    SET: ClassVar[str] = "SYNC_MAC"
+
+
+@dataclass(frozen=True)
+class HeartbeatMac(ThrCmdMac):
+    """HEARTBEAT_<NODE>_MAC: the authenticator of a node's heartbeat (fields as ``ThrCmdMac``;
+    the key is the node id, the freshness the sender's clock)."""
+
+    SET: ClassVar[str] = "HEARTBEAT_MAC"
+
+    def to_signals(self) -> Signals:
+        return {f"HEARTBEAT_{Node(self.key_lo).name}_MAC": {
+            "key_lo": self.key_lo, "fresh_lo": self.fresh_lo, "mac": self.mac}}
+
+    @classmethod
+    def from_signals(cls, sig: Signals) -> HeartbeatMac:
+        ((_, s),) = sig.items()
+        return cls(int(s["key_lo"]), int(s["fresh_lo"]), int(s["mac"]))
+
+
+@dataclass(frozen=True)
+class GyroMac(ThrCmdMac):
+    """GYRO_MAC: the authenticator of GYRO (fields as ``ThrCmdMac``; the key is the sample
+    sequence's low 8 bits, the freshness the sender's clock)."""
+
+    SET: ClassVar[str] = "GYRO_MAC"
+
+
 Message = (Sync | Gyro | ThrCmd | FdirStatus | FaultCmd | FaultAck | FlightTiming | Heartbeat
-           | ThrCmdMac | FaultCmdMac)
+           | ThrCmdMac | FaultCmdMac | GyroMac | HeartbeatMac | SyncMac)
 MESSAGE_TYPES: dict[str, type] = {
     c.SET: c for c in (Sync, Gyro, ThrCmd, FdirStatus, FaultCmd, FaultAck, FlightTiming, Heartbeat,
-                       ThrCmdMac, FaultCmdMac)
+                       ThrCmdMac, FaultCmdMac, GyroMac, HeartbeatMac, SyncMac)
 }
 
 
 def set_name_of(f: FrameDef) -> str:
-    """Logical message of a frame (the HEARTBEAT_* frames all map to HEARTBEAT)."""
+    """Logical message of a frame (the HEARTBEAT_<NODE> frames all map to HEARTBEAT, their
+    authenticators HEARTBEAT_<NODE>_MAC to HEARTBEAT_MAC)."""
     if f.name.startswith("HEARTBEAT_"):
-        return "HEARTBEAT"
+        return "HEARTBEAT_MAC" if f.name.endswith("_MAC") else "HEARTBEAT"
     return f.set_name or f.name
 
 

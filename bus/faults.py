@@ -56,11 +56,13 @@ BABBLE_MAX_PER_CALL = 2000  # frames one release may flood (a long gap does not 
 
 
 def message_ids(message: str | None, catalog: Catalog = CATALOG) -> frozenset[int] | None:
-    """The identifiers of a catalog message (set) or frame name; None for "every frame".
-    BusError (one line) for a name the catalog does not have."""
+    """The identifiers of a catalog message (set) or frame name, with the authenticator of a
+    secured message (``<name>_MAC``: the trailer of the secured PDU, bus.secoc, travels with
+    it); None for "every frame". BusError (one line) for a name the catalog does not have."""
     if message is None:
         return None
-    ids = {f.frame_id for f in catalog.frames if message in (f.name, f.set_name)}
+    ids = {f.frame_id for f in catalog.frames
+           if message in (f.name, f.set_name) or f.name == f"{message}_MAC"}
     if not ids:
         names = sorted({f.set_name or f.name for f in catalog.frames})
         raise BusError(f"bus fault: message: expected a catalog message or frame ({names}), "

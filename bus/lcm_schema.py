@@ -116,6 +116,8 @@ def _struct_name(set_name: str) -> str:
     # The three heartbeats carry the same signals: one struct, one channel per node.
     if set_name in {f"HEARTBEAT_{n.name}" for n in Node}:
         return "heartbeat_t"
+    if set_name in {f"HEARTBEAT_{n.name}_MAC" for n in Node}:
+        return "heartbeat_mac_t"
     return set_name.lower() + "_t"
 
 
@@ -195,7 +197,8 @@ def lcm_text(st: StructDef) -> str:
         f"// Logical message {st.set_name}, in engineering units; its CAN frames:",
         *(f"//   0x{f.frame_id:03X} {f.name}: {f.comment}" for f in st.frames),
         f"// Sent by {', '.join(senders)}; channel {CHANNEL_PREFIX}{st.set_name}"
-        + (" (and the other nodes' heartbeat channels)" if st.name == "heartbeat_t" else "")
+        + (" (and the other nodes' heartbeat channels)"
+           if st.name in ("heartbeat_t", "heartbeat_mac_t") else "")
         + ".",
         f"package {PACKAGE};",
         "",

@@ -1,9 +1,14 @@
 """Authentication of the frames that can hurt (AUTOSAR SecOC as the model; docs/hostile-bus.md).
 
 E2E (CRC + alive counter, ``bus.e2e``) protects against corruption, not against a sender that
-should not be there: anyone on the bus can compute a CRC. THR_CMD and FAULT_CMD therefore
-carry an authenticator, sent as a frame of its own after the message (``THR_CMD_MAC``,
-``FAULT_CMD_MAC`` in the catalog; classic CAN has no room left in the message's frames):
+should not be there: anyone on the bus can compute a CRC. THR_CMD, FAULT_CMD, GYRO (a
+forged sample that completes its set would be flown on), SYNC (a forged tick far ahead makes
+the lockstep flight refuse the genuine ones as duplicates) and the heartbeats (forged ones with
+the alive counter the genuine sender is about to use make the genuine beats "repeated": the
+plant went safe for a flight that was beating) therefore carry an authenticator, sent as a
+frame of its own after the message (``THR_CMD_MAC``, ``FAULT_CMD_MAC``, ``GYRO_MAC``,
+``SYNC_MAC``, ``HEARTBEAT_<NODE>_MAC`` in the catalog; classic CAN has no room left in the message's
+frames):
 
     MAC = HMAC-SHA256(key, id16 | payload | freshness64)[:3]      (24 bits, SecOC's truncation)
 
@@ -11,11 +16,20 @@ carry an authenticator, sent as a frame of its own after the message (``THR_CMD_
 ``bus.codec.encode`` gives them (E2E header zero: the MAC covers the signals, the E2E header
 covers the transfer), ``freshness64`` the freshness value, big endian:
 
-* THR_CMD: the tick (the lockstep and the real-time grid keep it in step on both sides); the
-  receiver takes a tick only when it is newer than the last one it authenticated;
+* THR_CMD and SYNC: the tick (the lockstep and the real-time grid keep it in step on both
+  sides); the receiver takes a tick only when it is newer than the last one of that message
+  it authenticated;
 * FAULT_CMD: the sender's clock in 10 ms units (the panel is a new process each time and
   keeps no counter); the receiver rebuilds it from the 16 low bits and its own clock and takes
   it only within ``FAULT_FRESH_WINDOW`` of its clock and newer than the last one it took.
+* GYRO: the sender's clock in 10 ms units, as FAULT_CMD (a lockstep plant sends many samples
+  in one 10 ms, and a flight that joins late cannot know how often the 16-bit sample sequence
+  has wrapped); the receiver takes it within ``FAULT_FRESH_WINDOW`` of its clock and only
+  when the sample sequence (covered by the MAC) is ahead of the last one it took, or the
+  clock more than ``RESTART_S`` ahead of that one's (a restarted plant counts from 0 again).
+* HEARTBEAT: the sender's clock in 10 ms units, taken within ``FAULT_FRESH_WINDOW`` of the
+  receiver's clock when newer than the last beat of that node taken (or as new and different:
+  a lockstep node may beat twice within 10 ms); the key is the node id.
 
 The key (32 random bytes) is made per run by ``hil run`` / ``hil up`` and handed to the nodes
 and the panel in a file only the user may read (``hil.secoc_key``); it never goes on the bus
@@ -32,7 +46,20 @@ import hashlib
 import hmac
 from collections import Counter
 
-from bus.codec import FaultCmd, FaultCmdMac, Message, ThrCmd, ThrCmdMac, encode
+from bus.codec import (
+    FaultCmd,
+    FaultCmdMac,
+    Gyro,
+    GyroMac,
+    Heartbeat,
+    HeartbeatMac,
+    Message,
+    Sync,
+    SyncMac,
+    ThrCmd,
+    ThrCmdMac,
+    encode,
+)
 
 MAC_BITS = 24
 KEY_BYTES = 32
@@ -45,15 +72,24 @@ MATCH_WINDOW_S = 0.1
 WAIT_LIMIT_S = 1.0
 PER_KEY = 4  # secured messages of one key waiting for an authenticator at most
 CLASSES = ("auth_ok", "auth_fail", "auth_missing", "auth_replay")
-SECURED: dict[type, type] = {ThrCmd: ThrCmdMac, FaultCmd: FaultCmdMac}
+RESTART_S = 1.0  # a GYRO this much newer than the last one taken is taken whatever its sequence
+SECURED: dict[type, type] = {ThrCmd: ThrCmdMac, FaultCmd: FaultCmdMac, Gyro: GyroMac,
+                             Heartbeat: HeartbeatMac, Sync: SyncMac}
+MAC_OF: dict[type, type] = {mac: msg for msg, mac in SECURED.items()}
 # Logical messages (bus.codec.set_name_of) of the secured messages and their authenticators:
 # the receiver of an authenticating node lets the authenticator judge them (bus.receiver).
-AUTHENTICATED_SETS = frozenset({"THR_CMD", "FAULT_CMD", "THR_CMD_MAC", "FAULT_CMD_MAC"})
+AUTHENTICATED_SETS = frozenset(n for m in SECURED.items() for n in (m[0].SET, m[1].SET))
 
 
 def message_key(msg: Message) -> int:
     """The set key a secured message's authenticator names (low 8 bits)."""
-    return (msg.tick if isinstance(msg, ThrCmd) else msg.request_id) & 0xFF
+    if isinstance(msg, ThrCmd | Sync):
+        return msg.tick & 0xFF
+    if isinstance(msg, Gyro):
+        return msg.sample_seq & 0xFF
+    if isinstance(msg, Heartbeat):
+        return int(msg.node)
+    return msg.request_id & 0xFF
 
 
 def compute_mac(key: bytes, msg: Message, freshness: int, frames: list | None = None) -> int:
@@ -79,7 +115,10 @@ class Authenticator:
             raise ValueError(f"secoc: key: expected at least 16 bytes, got {len(key)}")
         self._key = bytes(key)
         self.last_tick: int | None = None
+        self.last_sync: int | None = None
         self.last_fault_fv: int | None = None
+        self.last_gyro: tuple[int, int] | None = None  # (freshness, sample_seq) last taken
+        self.last_beat: dict[int, tuple[int, Heartbeat]] = {}  # node -> (freshness, beat)
         self.counts: Counter[str] = Counter({c: 0 for c in CLASSES})
         self.events: list[str] = []
         self.events_given = 0
@@ -105,7 +144,7 @@ class Authenticator:
         mac_type = SECURED.get(type(msg))
         if mac_type is None:
             return None
-        fv = msg.tick if isinstance(msg, ThrCmd) else fault_freshness(now_s)
+        fv = msg.tick if isinstance(msg, ThrCmd | Sync) else fault_freshness(now_s)
         return mac_type(message_key(msg), fv & 0xFFFF, compute_mac(self._key, msg, fv, frames))
 
     # -- receiver -------------------------------------------------------------------------
@@ -117,8 +156,8 @@ class Authenticator:
         out: list[tuple[Message, float]] = []
         for msg, rx in items:
             self._latest_rx = max(self._latest_rx, rx)
-            if isinstance(msg, ThrCmdMac):  # FaultCmdMac is a subclass
-                of = FaultCmd if isinstance(msg, FaultCmdMac) else ThrCmd
+            of = MAC_OF.get(type(msg))
+            if of is not None:
                 k = (of, msg.key_lo)
                 if not (k in self._msgs and self._check_any(k, msg, now_s, out)):
                     macs = self._macs.setdefault(k, [])
@@ -202,7 +241,7 @@ class Authenticator:
         self._event(f"{type(m).__name__} failed authentication: not used")
 
     def _freshness(self, m: Message, mac: ThrCmdMac, now_s: float) -> int:
-        if isinstance(m, ThrCmd):
+        if isinstance(m, ThrCmd | Sync):
             return m.tick
         mine = fault_freshness(now_s)
         # The value nearest our clock whose low 16 bits are the ones sent.
@@ -223,6 +262,18 @@ class Authenticator:
         if isinstance(m, ThrCmd):
             fresh = (fv & 0xFFFF) == mac.fresh_lo and (self.last_tick is None
                                                       or fv > self.last_tick)
+        elif isinstance(m, Sync):
+            fresh = (fv & 0xFFFF) == mac.fresh_lo and (self.last_sync is None
+                                                      or fv > self.last_sync)
+        elif isinstance(m, Gyro):
+            last = self.last_gyro
+            fresh = abs(fv - fault_freshness(now_s)) <= FAULT_FRESH_WINDOW_S * 100 and (
+                last is None or 0 < (m.sample_seq - last[1]) & 0xFFFF < 0x8000
+                or fv > last[0] + RESTART_S * 100)
+        elif isinstance(m, Heartbeat):
+            beat = self.last_beat.get(int(m.node))
+            fresh = abs(fv - fault_freshness(now_s)) <= FAULT_FRESH_WINDOW_S * 100 and (
+                beat is None or fv > beat[0] or (fv == beat[0] and m != beat[1]))
         else:
             fresh = abs(fv - fault_freshness(now_s)) <= FAULT_FRESH_WINDOW_S * 100 and (
                 self.last_fault_fv is None or fv > self.last_fault_fv)
@@ -232,6 +283,12 @@ class Authenticator:
             return
         if isinstance(m, ThrCmd):
             self.last_tick = fv
+        elif isinstance(m, Sync):
+            self.last_sync = fv
+        elif isinstance(m, Gyro):
+            self.last_gyro = (fv, m.sample_seq)
+        elif isinstance(m, Heartbeat):
+            self.last_beat[int(m.node)] = (fv, m)
         else:
             self.last_fault_fv = fv
         self.counts["auth_ok"] += 1

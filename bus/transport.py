@@ -207,7 +207,7 @@ class Port:
         # queue the kernel drops and counts, ``kernel_drops``). None: no bound.
         self.max_frames_per_poll = max_frames_per_poll
         self.polls_capped = 0
-        # SecOC (bus.secoc.Authenticator): signs THR_CMD and FAULT_CMD on send, and hands on
+        # SecOC (bus.secoc.Authenticator): signs the secured messages (SECURED) on send, hands on
         # received ones only once authenticated. None: no authentication.
         self._auth = None
 

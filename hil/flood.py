@@ -9,11 +9,11 @@ bursts of one millisecond's worth (``sendmmsg`` on SocketCAN), seeded by ``--see
   wrong on purpose (every one is rejected as ``bad_crc``);
 * ``catalog-forged``: the catalog's identifiers with a valid E2E CRC and alive counter over a
   random payload: what corruption checks cannot stop;
-* ``forged``: whole THR_CMD sets ("every thruster full on", the next tick) and FAULT_CMD sets
-  ("stuck on" of thruster 0) with a valid E2E CRC and the alive counter that follows the
-  genuine sender's, each followed by an authenticator with a wrong MAC or by none (in turn):
-  they pass every E2E check and must stop at authentication (``auth_fail``,
-  ``auth_missing``);
+* ``forged``: whole THR_CMD sets ("every thruster full on", the next tick), FAULT_CMD sets
+  ("stuck on" of thruster 0) and GYRO sets (0.05 rad/s about every axis, the next sample) with
+  a valid E2E CRC and the alive counter that follows the genuine sender's, each followed by
+  an authenticator with a wrong MAC or by none (in turn): they pass every E2E check and must
+  stop at authentication (``auth_fail``, ``auth_missing``);
 * ``replay``: the newest authentic THR_CMD set heard on the bus with its authenticator, sent
   again with fresh E2E counters: the MAC verifies and only its freshness stops it
   (``auth_replay``).
@@ -47,7 +47,7 @@ from bus.catalog import (
     FaultAction,
     FaultKind,
 )
-from bus.codec import FaultCmd, FaultCmdMac, Frame, ThrCmd, ThrCmdMac, encode
+from bus.codec import FaultCmd, FaultCmdMac, Frame, Gyro, GyroMac, ThrCmd, ThrCmdMac, encode
 from bus.secoc import fault_freshness
 from bus.transport import BusConfig, FrameBus, from_can_message, open_bus, to_can_message
 from hil.argtypes import number
@@ -56,7 +56,10 @@ CLASSES = ("foreign", "catalog-bad-crc", "catalog-forged", "forged", "replay")
 LISTENING = ("forged", "replay")  # the classes that listen to the bus first
 THR_CMD_MAC_ID = CATALOG.frame("THR_CMD_MAC").frame_id
 FAULT_CMD_MAC_ID = CATALOG.frame("FAULT_CMD_MAC").frame_id
-SECURED_IDS = (*THR_CMD_IDS, THR_CMD_MAC_ID, *FAULT_CMD_IDS, FAULT_CMD_MAC_ID)
+GYRO_IDS = tuple(CATALOG.frame(n).frame_id for n in ("GYRO_1", "GYRO_2", "GYRO_MAC"))
+SECURED_IDS = (*THR_CMD_IDS, THR_CMD_MAC_ID, *FAULT_CMD_IDS, FAULT_CMD_MAC_ID, *GYRO_IDS)
+GROUP_FIRST_IDS = (THR_CMD_IDS[0], FAULT_CMD_IDS[0], GYRO_IDS[0])  # a group's first frame
+FORGED_RATE_RAD_S = 0.05  # a forged gyro sample's rate about every axis
 DEFAULT_THRUSTERS = 12  # a forged THR_CMD's size before a genuine one was heard
 # A receive filter nothing on the bus matches (an extended identifier nobody sends): the
 # classes that do not listen leave the kernel no queue to fill.
@@ -64,10 +67,10 @@ DEAF = [{"can_id": 0x1FFFFFFF, "can_mask": 0x1FFFFFFF, "extended": True}]
 
 
 class Listener:
-    """What a hostile node learns by listening to THR_CMD and FAULT_CMD: the last alive
-    counter of each identifier, the newest THR_CMD tick, its thruster count, manifold mask and
-    gyro sample, and the newest authentic THR_CMD set with its authenticator (frames as
-    sent)."""
+    """What a hostile node learns by listening to THR_CMD, FAULT_CMD and GYRO: the last alive
+    counter of each identifier, the newest THR_CMD tick, its thruster count, manifold mask,
+    the newest gyro sample sequence, and the newest authentic THR_CMD set with its
+    authenticator (frames as sent)."""
 
     def __init__(self) -> None:
         self.counter: dict[int, int] = {}
@@ -91,6 +94,10 @@ class Listener:
             self.authentic = [*self._set, fr]
             self._learn(self._set)
             self._set = []
+        elif fid == GYRO_IDS[1]:  # GYRO_2: the full sample sequence
+            from bus.codec import unpack
+
+            self.gyro_seq = int(unpack(CATALOG.by_id[fid], fr.data)["sample_seq"])
 
     def _learn(self, frames: list[Frame]) -> None:
         from bus.codec import decode
@@ -120,19 +127,24 @@ class Listener:
 
 
 def forged_group(k: int, rng: np.random.Generator, heard: Listener) -> list[Frame]:
-    """Group ``k`` of the ``forged`` class: even k a THR_CMD, odd k a FAULT_CMD, each with a
-    wrong authenticator (k % 4 < 2) or none."""
-    if k % 2 == 0:
+    """Group ``k`` of the ``forged`` class: by ``k % 3`` a THR_CMD, a FAULT_CMD or a GYRO,
+    each with a wrong authenticator (``k // 3`` even) or none."""
+    if k % 3 == 2:
+        seq = (heard.gyro_seq + 1) & 0xFFFF
+        msg: Any = Gyro(seq, (FORGED_RATE_RAD_S,) * 3, 1)
+        mac: Any = GyroMac(seq & 0xFF, fault_freshness(time.time()) & 0xFFFF,
+                           int(rng.integers(0, 1 << 24)))
+    elif k % 3 == 0:
         tick = 0 if heard.tick is None else heard.tick + 1
-        msg: Any = ThrCmd(tick, (max(ALLOWED_ON_QUANTA),) * heard.n_thr, heard.manifolds,
-                          heard.gyro_seq)
-        mac: Any = ThrCmdMac(tick & 0xFF, tick & 0xFFFF, int(rng.integers(0, 1 << 24)))
+        msg = ThrCmd(tick, (max(ALLOWED_ON_QUANTA),) * heard.n_thr, heard.manifolds,
+                     heard.gyro_seq)
+        mac = ThrCmdMac(tick & 0xFF, tick & 0xFFFF, int(rng.integers(0, 1 << 24)))
     else:
         rid = int(rng.integers(0, 256))
         msg = FaultCmd(rid, FaultAction.INJECT, FaultKind.STUCK_ON, 0, 1.0, 0.0, None)
         mac = FaultCmdMac(rid, fault_freshness(time.time()) & 0xFFFF,
                           int(rng.integers(0, 1 << 24)))
-    frames = encode(msg) + (encode(mac) if k % 4 < 2 else [])
+    frames = encode(msg) + (encode(mac) if (k // 3) % 2 == 0 else [])
     return heard.protect(frames)
 
 
@@ -218,8 +230,7 @@ def flood(kind: str, rate_hz: float, seconds: float, interface: str, channel: st
                 frames = make_frames(kind, n, rng, protector, heard, groups)
                 owed -= len(frames)
                 if kind in LISTENING:
-                    groups += sum(f.arbitration_id in (THR_CMD_IDS[0], FAULT_CMD_IDS[0])
-                                  for f in frames)
+                    groups += sum(f.arbitration_id in GROUP_FIRST_IDS for f in frames)
                 if isinstance(bus, FrameBus):
                     k = bus.send_frames(frames)
                     sent += k

@@ -159,8 +159,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="publish each tick's record on LCM at URL (HIL_TRUTH from the plant, "
                         "HIL_FLIGHT_VIEW from the flight; docs/lcm.md)")
     p.add_argument("--key-file", metavar="FILE",
-                   help="SecOC key (mode 0600, made by hil run / hil up): THR_CMD and "
-                        "FAULT_CMD are signed and checked (docs/hostile-bus.md); without "
+                   help="SecOC key (mode 0600, made by hil run / hil up): THR_CMD, "
+                        "FAULT_CMD, GYRO, SYNC and heartbeats are signed and checked; without "
                         "it they are not")
     p.add_argument("--start-after", metavar="FILE",
                    help="set up, then wait until FILE exists before the first tick (hil run "

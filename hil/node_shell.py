@@ -71,9 +71,9 @@ def open_port(settings: NodeSettings, out: Path, name: str) -> Port:
     (lockstep: age limits of ``lockstep_receiver``; ``NAME.bus.log`` when
     ``settings.bus_log``). On CAN: receive filters from the catalog (only the identifiers the
     node consumes; in the kernel on SocketCAN) and at most ``MAX_FRAMES_PER_POLL`` frames per
-    poll. With a key file, THR_CMD and FAULT_CMD are signed and checked (on both buses: over
-    LCM the authenticator is a message of its own channel, as it is a frame of its own on
-    CAN)."""
+    poll. With a key file, the secured messages (``bus.secoc.SECURED``) are signed and
+    checked (on both buses: over LCM the authenticator is a message of its own channel, as it
+    is a frame of its own on CAN)."""
     s = settings
     receiver = lockstep_receiver(s.reply_timeout) if s.mode == "lockstep" else None
     if s.interface == "lcm":  # LCM: the channel is the provider URL (docs/lcm.md)
@@ -131,7 +131,7 @@ def node_config(sc: Scenario, settings: NodeSettings, safety: dict) -> dict:
             "vehicle_file": str(vfile.resolve()),
             "thrusters": [t.name for t in sc.vehicle.thrusters], "mode": settings.mode,
             "bus": f"{settings.interface} {settings.channel}", "safety": safety,
-            # THR_CMD and FAULT_CMD authenticated (bus.secoc): only with --key-file
+            # the secured messages authenticated (bus.secoc.SECURED): only with --key-file
             "secoc": settings.key_file is not None,
             # THR_CMD(n) takes effect this long after tick n's sample (0: on arrival)
             "actuation_phase_ms": round(1000.0 * settings.actuation_phase_s(), 3)}

@@ -9,8 +9,11 @@ from .fault_cmd_mac_t import fault_cmd_mac_t as fault_cmd_mac_t
 from .fault_cmd_t import fault_cmd_t as fault_cmd_t
 from .fdir_status_t import fdir_status_t as fdir_status_t
 from .flight_timing_t import flight_timing_t as flight_timing_t
+from .gyro_mac_t import gyro_mac_t as gyro_mac_t
 from .gyro_t import gyro_t as gyro_t
+from .heartbeat_mac_t import heartbeat_mac_t as heartbeat_mac_t
 from .heartbeat_t import heartbeat_t as heartbeat_t
+from .sync_mac_t import sync_mac_t as sync_mac_t
 from .sync_t import sync_t as sync_t
 from .thr_cmd_mac_t import thr_cmd_mac_t as thr_cmd_mac_t
 from .thr_cmd_t import thr_cmd_t as thr_cmd_t

@@ -24,7 +24,7 @@ class thr_cmd_mac_t(object):
     def __init__(self):
         self.key_lo = 0
         """
-        low 8 bits of the THR_CMD key (tick / request id)
+        low 8 bits of the THR_CMD set key
         LCM Type: int16_t
         """
 

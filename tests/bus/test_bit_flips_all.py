@@ -47,8 +47,11 @@ from bus.codec import (
     FlightTiming,
     Frame,
     Gyro,
+    GyroMac,
     Heartbeat,
+    HeartbeatMac,
     Sync,
+    SyncMac,
     ThrCmd,
     ThrCmdMac,
     encode,
@@ -73,9 +76,12 @@ SAMPLES = {
     ),
     "THR_CMD_MAC": ThrCmdMac(0x92, 4242, 0xA5C3E1),
     "FAULT_CMD_MAC": FaultCmdMac(42, 0xBEEF, 0x123456),
+    "GYRO_MAC": GyroMac(0xEF, 0x3A5C, 0x654321),
+    "SYNC_MAC": SyncMac(0x40, 0xE240, 0x0F1E2D),
     "FAULT_ACK": FaultAck(42, AckStatus.REJECTED, AckReason.BAD_FRACTION, FaultKind.DEGRADED),
     "FLIGHT_TIMING": FlightTiming(4242, 12_345 * 1e-6, 3),
     **{f"HEARTBEAT_{n.name}": Heartbeat(n, NodeState.RUN, 1000 + n, 7 * n, 11 * n) for n in Node},
+    **{f"HEARTBEAT_{n.name}_MAC": HeartbeatMac(int(n), 0x1234 + n, 0xABCDE0 + n) for n in Node},
 }
 
 RELAXED = Catalog(tuple(dataclasses.replace(f, deadline_s=3600.0) for f in CATALOG.frames))

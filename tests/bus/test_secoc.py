@@ -1,6 +1,7 @@
-"""SecOC authentication of THR_CMD and FAULT_CMD (bus.secoc) over python-can's virtual bus:
-forged frames with a valid E2E CRC and a wrong or missing MAC are refused and counted, a
-replayed authentic message is refused by its freshness, an authentic one is used."""
+"""SecOC authentication of THR_CMD and FAULT_CMD (bus.secoc; GYRO: test_secoc_gyro.py) over
+python-can's virtual bus: forged frames with a valid E2E CRC and a wrong or missing MAC are
+refused and counted, a replayed authentic message is refused by its freshness, an authentic
+one is used."""
 
 import hashlib
 import hmac
@@ -9,7 +10,7 @@ import time
 import pytest
 
 from bus.catalog import FaultAction, FaultKind
-from bus.codec import FaultCmd, FaultCmdMac, Sync, ThrCmd, encode
+from bus.codec import FaultCmd, FaultCmdMac, FlightTiming, Sync, ThrCmd, encode
 from bus.secoc import WAIT_LIMIT_S, Authenticator, compute_mac, message_key
 from bus.transport import BusConfig, Port, open_bus
 
@@ -49,13 +50,13 @@ def test_authentic_commands_pass_and_unsecured_messages_are_untouched():
         fault = FaultCmd(9, FaultAction.INJECT, FaultKind.STUCK_ON, 1, 1.0, 0.0, None)
         for c in cmds:
             a.send(c)
-        a.send(fault, Sync(4, 800))
+        a.send(fault, Sync(4, 800), FlightTiming(4, 0.001, 0))
         got = take(b)
     finally:
         a.close()
         b.close()
-    assert got == [*cmds, fault, Sync(4, 800)]
-    assert b.counts()["auth_ok"] == 6 and b.counts()["auth_fail"] == 0
+    assert got == [*cmds, fault, Sync(4, 800), FlightTiming(4, 0.001, 0)]
+    assert b.counts()["auth_ok"] == 7 and b.counts()["auth_fail"] == 0
 
 
 @pytest.mark.parametrize("tx_key", [OTHER, None], ids=["wrong-key", "no-mac"])
@@ -130,7 +131,8 @@ def test_a_slow_reader_does_not_lose_a_message_whose_authenticator_waits_in_the_
     # A forged one: a frame received 0.2 s later shows its authenticator is not coming.
     forged = ThrCmd(4, (20, 20, 20), 1, 4)
     assert rx.accept([(forged, 11.0)], 11.0) == []
-    assert rx.accept([(Sync(5, 0), 11.2)], 11.2) == [(Sync(5, 0), 11.2)]
+    assert rx.accept([(FlightTiming(5, 0.001, 0), 11.2)], 11.2) == [
+        (FlightTiming(5, 0.001, 0), 11.2)]
     assert rx.counts["auth_missing"] == 1 and rx.counts["auth_ok"] == 1
 
 

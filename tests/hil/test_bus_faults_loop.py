@@ -183,9 +183,10 @@ def test_panel_bus_command_errors_are_one_line():
 
 def test_forged_fault_and_thruster_commands_change_nothing_with_secoc(tmp_path):
     """A third node with valid E2E (its own CRCs and counters) but no key: its FAULT_CMD
-    ("stuck on" for X-) and THR_CMD (every thruster full on) are refused and counted."""
+    ("stuck on" for X-), THR_CMD (every thruster full on), GYRO (0.05 rad/s about every
+    axis) and SYNC (a tick far ahead) are refused and counted."""
     from bus.catalog import FaultAction, FaultKind
-    from bus.codec import FaultCmd, ThrCmd
+    from bus.codec import FaultCmd, Gyro, Sync, ThrCmd
     from bus.transport import BusConfig, Port, open_bus
 
     def attacker(channel, done):
@@ -196,6 +197,8 @@ def test_forged_fault_and_thruster_commands_change_nothing_with_secoc(tmp_path):
             port.send(FaultCmd(n % 256, FaultAction.INJECT, FaultKind.STUCK_ON, 1, 1.0, 0.0,
                                None))
             port.send(ThrCmd(10_000 + n, (20,) * 12, 0xF, 0))
+            port.send(Gyro((n * 7) & 0xFFFF, (0.05, 0.05, 0.05), 1))
+            port.send(Sync(50_000 + n, 0))
         port.close()
 
     precs, frecs, s = run_pair(tmp_path, "", duration_s=6.0, key=True, attacker=attacker)
@@ -210,6 +213,14 @@ def test_forged_fault_and_thruster_commands_change_nothing_with_secoc(tmp_path):
     assert pb["repeated_counter"] + pb["counter_jump"] > 0
     assert pb["auth_missing"] + pb["auth_fail"] > 10  # the forged FAULT_CMD and THR_CMD
     assert s["bus"]["flight"]["auth_missing"] > 5  # the flight hears FAULT_CMD too
+    # ... and refuses the forged gyro samples: it flew on the plant's alone (every one of
+    # its ticks had an authentic sample, none near the forged 0.05 rad/s)
+    assert s["bus"]["flight"]["auth_ok"] >= 30
+    # (the craft turns about x; about y and z the genuine rate stays near 0, a forged
+    # sample would read 2.86 deg/s)
+    rates = [abs(r["series"]["flight/omega_meas_deg_s"][a]) for r in frecs if "series" in r
+             for a in "yz"]
+    assert len(rates) >= 60 and max(rates) < 0.1, max(rates, default=None)
     assert not any("fault injected" in e for r in precs for e in r.get("events", []))
     assert any("without its authenticator" in e for r in precs for e in r.get("events", []))
     used = forged_used(s, precs, frecs)  # every command applied is one the flight sent

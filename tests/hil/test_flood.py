@@ -63,7 +63,8 @@ def test_forged_frames_pass_e2e_and_stop_at_authentication():
         assert len(_receive(rx, auth, frames, tick * 0.2)) == 1
     assert (heard.tick, heard.n_thr, heard.manifolds) == (2, 6, 0x3)
     forged = make_frames("forged", 40, np.random.default_rng(1), e2e.Protector(), heard)
-    assert {f.arbitration_id for f in forged} >= {THR_CMD_IDS[0], FAULT_CMD_IDS[0]}
+    assert {f.arbitration_id for f in forged} >= {THR_CMD_IDS[0], FAULT_CMD_IDS[0],
+                                                  CATALOG.frame("GYRO_1").frame_id}
     used = _receive(rx, auth, forged, 0.6)
     auth.expire(5.0)  # the forgeries without an authenticator are missing by now
     assert used == []
@@ -95,3 +96,15 @@ def test_flood_over_virtual_reaches_its_rate_and_counts_by_identifier():
     assert 0.45 < res["seconds"] < 1.5 and 700 < res["sent"] <= 1100
     assert sum(res["by_id"].values()) == res["sent"]
     assert not set(map(int, res["by_id"])) & {f.frame_id for f in CATALOG.frames}
+
+
+def test_forged_flood_over_virtual_goes_through_every_secured_message_with_and_without_mac():
+    """Groups are numbered across bursts, so a flood cycles THR_CMD, FAULT_CMD and GYRO, each
+    in turn with a wrong authenticator and with none."""
+    res = flood("forged", 600, 0.5, "virtual", "t_flood_forged", 1)
+    by_id = {int(k): v for k, v in res["by_id"].items()}
+    firsts = [CATALOG.frame(n).frame_id for n in ("THR_CMD_0", "FAULT_CMD_0", "GYRO_1")]
+    macs = [CATALOG.frame(n).frame_id for n in ("THR_CMD_MAC", "FAULT_CMD_MAC", "GYRO_MAC")]
+    assert all(by_id.get(i, 0) >= 2 for i in firsts), by_id
+    assert all(0 < by_id.get(m, 0) < by_id[i] for i, m in zip(firsts, macs, strict=True)), by_id
+    assert res["groups"] == sum(by_id[i] for i in firsts)
