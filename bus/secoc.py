@@ -92,6 +92,12 @@ def message_key(msg: Message) -> int:
     return msg.request_id & 0xFF
 
 
+def _stream(msg: Message) -> object:
+    """What a secured message's freshness is judged against: the last message of the same
+    type taken (of the same node, for heartbeats)."""
+    return (Heartbeat, int(msg.node)) if isinstance(msg, Heartbeat) else type(msg)
+
+
 def compute_mac(key: bytes, msg: Message, freshness: int, frames: list | None = None) -> int:
     """The 24-bit truncated HMAC-SHA256 of ``msg`` with ``freshness`` (module doc);
     ``frames``: ``encode(msg)`` when the caller has it already (encoding costs more than the
@@ -114,11 +120,8 @@ class Authenticator:
         if len(key) < 16:
             raise ValueError(f"secoc: key: expected at least 16 bytes, got {len(key)}")
         self._key = bytes(key)
-        self.last_tick: int | None = None
-        self.last_sync: int | None = None
-        self.last_fault_fv: int | None = None
-        self.last_gyro: tuple[int, int] | None = None  # (freshness, sample_seq) last taken
-        self.last_beat: dict[int, tuple[int, Heartbeat]] = {}  # node -> (freshness, beat)
+        # The last message taken per stream (``_stream``) and its freshness value.
+        self._last: dict[object, tuple[int, Message]] = {}
         self.counts: Counter[str] = Counter({c: 0 for c in CLASSES})
         self.events: list[str] = []
         self.events_given = 0
@@ -259,37 +262,24 @@ class Authenticator:
                out: list[tuple[Message, float]]) -> None:
         """``m`` verified against ``mac``: used when fresh, else counted as a replay."""
         fv = self._freshness(m, mac, now_s)
-        if isinstance(m, ThrCmd):
-            fresh = (fv & 0xFFFF) == mac.fresh_lo and (self.last_tick is None
-                                                      or fv > self.last_tick)
-        elif isinstance(m, Sync):
-            fresh = (fv & 0xFFFF) == mac.fresh_lo and (self.last_sync is None
-                                                      or fv > self.last_sync)
-        elif isinstance(m, Gyro):
-            last = self.last_gyro
-            fresh = abs(fv - fault_freshness(now_s)) <= FAULT_FRESH_WINDOW_S * 100 and (
-                last is None or 0 < (m.sample_seq - last[1]) & 0xFFFF < 0x8000
-                or fv > last[0] + RESTART_S * 100)
-        elif isinstance(m, Heartbeat):
-            beat = self.last_beat.get(int(m.node))
-            fresh = abs(fv - fault_freshness(now_s)) <= FAULT_FRESH_WINDOW_S * 100 and (
-                beat is None or fv > beat[0] or (fv == beat[0] and m != beat[1]))
-        else:
-            fresh = abs(fv - fault_freshness(now_s)) <= FAULT_FRESH_WINDOW_S * 100 and (
-                self.last_fault_fv is None or fv > self.last_fault_fv)
+        last = self._last.get(_stream(m))
+        if isinstance(m, ThrCmd | Sync):  # the tick: newer than the last one taken
+            fresh = (fv & 0xFFFF) == mac.fresh_lo and (last is None or fv > last[0])
+        else:  # the sender's clock: within the window, and newer (module doc)
+            if last is None:
+                newer = True
+            elif isinstance(m, Gyro):
+                newer = 0 < (m.sample_seq - last[1].sample_seq) & 0xFFFF < 0x8000 \
+                    or fv > last[0] + RESTART_S * 100
+            elif isinstance(m, Heartbeat):
+                newer = fv > last[0] or (fv == last[0] and m != last[1])
+            else:
+                newer = fv > last[0]
+            fresh = newer and abs(fv - fault_freshness(now_s)) <= FAULT_FRESH_WINDOW_S * 100
         if not fresh:
             self.counts["auth_replay"] += 1
             self._event(f"{type(m).__name__} authentic but not fresh (replay): not used")
             return
-        if isinstance(m, ThrCmd):
-            self.last_tick = fv
-        elif isinstance(m, Sync):
-            self.last_sync = fv
-        elif isinstance(m, Gyro):
-            self.last_gyro = (fv, m.sample_seq)
-        elif isinstance(m, Heartbeat):
-            self.last_beat[int(m.node)] = (fv, m)
-        else:
-            self.last_fault_fv = fv
+        self._last[_stream(m)] = (fv, m)
         self.counts["auth_ok"] += 1
         out.append((m, rx))
