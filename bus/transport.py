@@ -5,8 +5,10 @@ receive timestamp (CLOCK_REALTIME), ``virtual`` and ``udp_multicast`` with ``tim
 A ``Port`` therefore works in one named clock, ``Port.clock == "realtime"``: rx times it
 returns, ``Port.now_s()`` and the ``now_s`` it passes to the receiver are all CLOCK_REALTIME.
 Code that schedules on the monotonic clock converts explicitly with ``Port.to_monotonic_s``
-(offset sampled once when the port opens; wall-clock steps after that show up as an error of
-the same size, which is why the conversion is explicit and never silent).
+(``clock_offset_s``: the narrowest of a few bracketed reads of both clocks, so that a process
+preempted between two reads does not carry that stall into every conversion; sampled again
+once it is ``OFFSET_RESAMPLE_S`` old, so that a wall-clock step or slew shows up for at most
+that long).
 
 Backends. ``open_bus`` opens python-can buses by name. The ``socketcan`` interface opens this
 project's backend ``hil_socketcan`` (``bus.socketcan_fast.FastSocketcanBus``, a python-can
@@ -42,6 +44,23 @@ from bus.errors import BusError
 from bus.receiver import Receiver, Verdict
 
 CLOCK = "realtime"
+OFFSET_RESAMPLE_S = 1.0
+_OFFSET_READS = 5
+
+
+def clock_offset_s() -> tuple[float, float]:
+    """``time.monotonic() - time.time()`` and the uncertainty of it (seconds): of a few
+    ``monotonic, time, monotonic`` reads, the one whose two monotonic reads are closest (a
+    process descheduled between two reads of a pair, under load a few milliseconds, would
+    otherwise offset every converted time by as much)."""
+    best_w, best = float("inf"), 0.0
+    for _ in range(_OFFSET_READS):
+        m0 = time.monotonic()
+        r = time.time()
+        m1 = time.monotonic()
+        if m1 - m0 < best_w:
+            best_w, best = m1 - m0, 0.5 * (m0 + m1) - r
+    return best, best_w
 
 
 class BusConfig(BaseModel):
@@ -189,7 +208,8 @@ class Port:
         self.logger = logger
         self.tx_frames = 0
         self.tx_errors = 0
-        self.monotonic_offset_s = time.monotonic() - time.time()
+        self.monotonic_offset_s, self.monotonic_offset_width_s = clock_offset_s()
+        self._offset_at = time.monotonic()
         # Batch frame I/O where the bus offers it (not on a socket bound to every interface).
         self._raw: FrameBus | None = (
             bus if isinstance(bus, FrameBus) and getattr(bus, "channel", None) != "" else None)
@@ -230,7 +250,12 @@ class Port:
         return time.time()
 
     def to_monotonic_s(self, t_realtime_s: float) -> float:
-        """A time of this port's clock converted to ``time.monotonic()`` seconds."""
+        """A time of this port's clock converted to ``time.monotonic()`` seconds (the offset
+        sampled again once it is ``OFFSET_RESAMPLE_S`` old)."""
+        now = time.monotonic()
+        if now - self._offset_at > OFFSET_RESAMPLE_S:
+            self.monotonic_offset_s, self.monotonic_offset_width_s = clock_offset_s()
+            self._offset_at = now
         return t_realtime_s + self.monotonic_offset_s
 
     def protect(self, msg: Message, plain: list[Frame] | None = None) -> list[Frame]:

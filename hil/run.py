@@ -490,7 +490,7 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
         _wait_ready(out / "flight.ready", procs["flight"])
         _wait_ready(out / "plant.ready", procs["plant"])
         tails = {"plant": _Tail(out / "plant.jsonl"), "flight": _Tail(out / "flight.jsonl")}
-        last_print = 0.0
+        last_print, plant_tick = 0.0, 0
         while True:
             done = procs["plant"].poll() is not None
             new = [(s, r) for s, r in merge_by_tick(("plant", tails["plant"].read()),
@@ -510,8 +510,10 @@ def supervise(scenario_path: Path, out: Path, args, *, viewer: bool = False,
             if new and rrd is not None:
                 rrd.flush()
             now = time.monotonic()
+            # The plant's newest tick so far (a batch may hold flight records only).
+            plant_tick = max((r["tick"] for s, r in new if s == "plant"), default=plant_tick)
             if not quiet and now - last_print > 2.0 and new:
-                tick = max((r["tick"] for s, r in new if s == "plant"), default=0)
+                tick = plant_tick
                 print(f"  {sc.cfg.name}: tick {tick}/{n_ticks} "
                       f"({tick * sc.vehicle.timing.tick_s:.0f} s simulated, "
                       f"{now - t_wall:.0f} s wall)", flush=True)

@@ -1,9 +1,10 @@
 """CI smoke run of `hil bench` over a real vcan0 (natively or inside user-mode Linux).
 
 Runs the command as a user does, briefly, and checks that every figure is present, finite,
-non-negative and ordered (p50 <= p99 <= max, shares in [0, 1]), that each group says where it
-was taken, that the JSON and the plots are written, and that ``--stress`` leaves no process
-behind. No figure is compared with a time limit: a slow or loaded machine is not a failure.
+non-negative and ordered (p50 <= p99 <= max, the median share of the tick in [0, 1]), that
+each group says where it was taken, that the JSON and the plots are written, and that
+``--stress`` leaves no process behind. No figure is compared with a time limit: a slow or
+loaded machine is not a failure.
 """
 
 from __future__ import annotations
@@ -54,7 +55,8 @@ def test_bench_smoke_every_figure_present_and_sane(tmp_path) -> None:
     assert rt["where"]["sched"]["flight"] and rt["where"]["sched"]["plant"]
     assert rt["where"]["clock"].startswith("CLOCK_MONOTONIC")
     assert set(("observer", "detector", "controller", "allocator", "I/O")) <= set(rt["stage_ms"])
-    assert 0.0 <= rt["tick_share"]["p50"] <= rt["tick_share"]["max"] <= 1.0
+    # A tick stalled by the host can take longer than the tick (share > 1): an honest figure.
+    assert 0.0 <= rt["tick_share"]["p50"] <= min(1.0, rt["tick_share"]["max"])
     assert rt["s2a_ms"]["n"] > 0 and rt["ticks_used"] > 0
     assert rep["bus"]["clock"] and rep["bus"]["lost"] >= 0
     assert 0.0 < rep["bus_load"]["fraction"] < 1.0
