@@ -59,10 +59,11 @@ class Detection:
     direction (indices, sorted, includes ``thruster``); ``kind`` ``stuck_on`` or
     ``fail_to_fire``, ``degraded`` or ``gyro_fault`` (a sensor fault: ``thruster`` is -1, the
     group empty, ``names`` the fault's kind, ``flight.gyro_check``); ``rho`` the residual value
-    at the crossing; ``source`` ``residual`` (seed 000/003), ``kalman`` (seed 002 leak test),
-    ``gyro``, or ``isolation`` (renamed, or decided after a probe, by the flight's isolation of
-    opposite thrusters, ``flight.software``); ``fraction`` the estimated thrust fraction of a
-    degraded (or failed) thruster.
+    at the crossing (the thrust fraction for ``effectiveness``); ``source`` ``residual`` (seed
+    000/003), ``kalman`` (seed 002 leak test), ``effectiveness`` (the burn-fraction test,
+    ``Effectiveness.weak``), ``gyro``, or ``isolation`` (renamed, or decided after a probe, by
+    the flight's isolation of opposite thrusters, ``flight.software``); ``fraction`` the
+    estimated thrust fraction of a degraded (or failed) thruster.
     """
 
     tick: int
@@ -209,6 +210,8 @@ class Effectiveness:
         # Per thruster: (update count, thrust over nominal) of its last burns (``fraction``).
         self._recent: list[list[tuple[int, float]]] = [[] for _ in range(n)]
         self.updates = 0  # calls of ``update`` so far: the stamp of the next one's burns
+        self.kept = _FRACTION_KEPT  # burns kept per thruster (at least the weak test's)
+        self._since = 0  # the first update whose burns ``weak`` reads (after a restore)
 
     @property
     def theta(self) -> np.ndarray:
@@ -288,7 +291,7 @@ class Effectiveness:
             phi = self.mu[j] * e[j]
             hist = self._recent[j]
             hist.append((stamp, float(k_used[j] + phi @ r / (phi @ phi))))
-            del hist[:-_FRACTION_KEPT]
+            del hist[:-self.kept]
         if self.bound <= 0.0:
             return  # learning off: only the measured fraction above
         d = np.diag_indices(len(self.x))
@@ -319,6 +322,21 @@ class Effectiveness:
         if self.latency_bound_s > 0.0:
             self.x[2 * n] = self.latency_s
 
+    def weak(self, below: float, sigma: float, burns: int, use: np.ndarray) -> int | None:
+        """Burn-fraction test: of the usable thrusters whose last ``burns`` measurable burns
+        since the last ``restore`` average below ``below`` by ``sigma`` standard errors (the
+        burns' own scatter), the one with the lowest upper bound; None when there is none."""
+        best: tuple[float, int] | None = None
+        for j in np.flatnonzero(np.asarray(use, dtype=bool)):
+            fr = [f for t, f in self._recent[j] if t >= self._since][-int(burns):]
+            if len(fr) < int(burns):
+                continue
+            upper = float(np.mean(fr)) + float(sigma) * float(np.std(fr, ddof=1)) / math.sqrt(
+                len(fr))
+            if upper < float(below) and (best is None or upper < best[0]):
+                best = (upper, int(j))
+        return None if best is None else best[1]
+
     def rate_change_cov(self, eff_s: np.ndarray, use: np.ndarray,
                         deff_dlat: np.ndarray | None = None) -> np.ndarray:
         """(3, 3) covariance of the predicted rate change of the burning thrusters from the
@@ -343,6 +361,7 @@ class Effectiveness:
     def restore(self) -> None:
         """After a response: back to the last trusted estimate."""
         self.x, self.P = self._trusted[0].copy(), self._trusted[1].copy()
+        self._since = self.updates
 
 
 def leak_or_deficit(y: np.ndarray, burn_i: np.ndarray, closed_j: np.ndarray) -> float:

@@ -79,6 +79,9 @@ _ISOLATION_RATIO = 2.0
 # a failed one gives nothing) and the hypotheses are fitted again. Two ticks: an integrating
 # gyro's mean over the second interval has no burn of either in it.
 _PROBE_TICKS = 2
+# The burn-fraction test names no thruster when a leak of another explains the last ticks'
+# residual this much better (residual sum of squares) than its own deficit.
+_WEAK_LEAK_RSS = 0.8
 # What the isolation returns when neither hypothesis of a pair holds (_isolate_opposite).
 NEITHER = Detection(tick=-1, thruster=-1, kind="none", group=(), names=(), rho=0.0)
 # The probe starts before a crossing when a failing thruster's and its opposite's stuck-on
@@ -133,6 +136,17 @@ class TickOutput:
     attitude_BO: np.ndarray
 
 
+def _rss_one(y: np.ndarray, x: np.ndarray) -> float:
+    """Residual sum of squares of the one-parameter least-squares fit ``y ~ c x``, ``c >= 0``
+    (arrays of one shape; all of ``y`` when ``x`` is zero or the best ``c`` is negative)."""
+    xx = float((x * x).sum())
+    yy = float((y * y).sum())
+    xy = float((x * y).sum())
+    if xx <= 0.0 or xy <= 0.0:
+        return yy
+    return max(yy - xy * xy / xx, 0.0)
+
+
 class FlightSoftware:
     """Flight tick for one vehicle; pure and deterministic (module doc).
 
@@ -168,6 +182,7 @@ class FlightSoftware:
                                            latency_bound_s=learn_lat,
                                            latency_floor_s=-self.model.nominal_latency_s,
                                            common_share=dc.effectiveness_common_share)
+        self.effectiveness.kept = max(self.effectiveness.kept, dc.weak_burns)
         if learn_lat > 0.0:
             self.model.learn_latency()
         self.detector = Detector(self.arrays.mu_B_rad_s2, dc, self.arrays.names,
@@ -182,6 +197,7 @@ class FlightSoftware:
                                     hold_rad_s=dc.gyro_hold_rad_s)
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
+        self._weak: int | None = None  # the learnt-effectiveness test's thruster this tick
         # (observer residual, burns, outside the dead zone, raw residual) of the last ticks
         self._window: list[tuple[np.ndarray, np.ndarray, bool, np.ndarray, int]] = []
         # Commanded effect kept for the relative dead zone (detector.relative_dead_zone_memory).
@@ -376,11 +392,47 @@ class FlightSoftware:
                     # leak: the two hypotheses are fitted as for the detector's crossings.
                     det = self._settle(self._isolate_opposite(found, self.fdir.available),
                                        found)
+        weak, self._weak = self._weak, None
+        if weak is not None and det is None and self.detector.latched is None \
+                and self._probe is None and not self._gyro_suspect() and self.fdir.available[weak]:
+            det = self._settle(*self._weak_detection(weak))
         self._det = det
         if det is not None:
             resp = self.fdir.handle(det.kind, det)
             if resp.rebaseline:
                 self.rebaseline()
+
+    def _weak_detection(self, i: int) -> tuple[Detection | None, Detection | None]:
+        """The burn-fraction test named thruster ``i``: ``(what is named, what was found)`` for
+        ``_settle``, degraded, or fails to fire below ``fail_fraction`` (the fraction its last
+        burns showed), judged against an exactly opposite thruster as the detector's crossings
+        are; ``(None, None)`` (nothing named now) when another thruster's leak explains the
+        last ticks' residual better than i's deficit."""
+        avail = self.fdir.available
+        if self._window:
+            # A thruster stuck on and fought by i takes from i's burns too, and while i burns
+            # on every tick the timing cannot tell them apart; the direction can: a deficit of
+            # i moves the rate against i's direction only, a leak of j along j's. Over the last
+            # ticks, fit the raw residual (3 axes) by each (a deficit and a leak of positive
+            # size): if some j's leak leaves less than _WEAK_LEAK_RSS of what i's deficit
+            # leaves, i is not named now.
+            raw = np.array([w[3] for w in self._window])            # (W, 3)
+            eff = np.array([w[1] for w in self._window])            # (W, N)
+            mu = self.arrays.mu_B_rad_s2
+            deficit = -(self.effectiveness.k[i] * eff[:, i])[:, None] * mu[i][None, :]
+            closed = self.h - np.clip(eff, 0.0, self.h)
+            rss_i = _rss_one(raw, deficit)
+            for j in np.flatnonzero(avail):
+                if j != i and _rss_one(raw, closed[:, j][:, None] * mu[j][None, :]) \
+                        < _WEAK_LEAK_RSS * rss_i:
+                    return None, None
+        frac = float(self.effectiveness.fraction[i])
+        kind = DEGRADED if frac >= self.detector.cfg.fail_fraction else FAIL_TO_FIRE
+        group = tuple(j for j in self.detector.groups[i] if avail[j])
+        found = Detection(tick=self._tick, thruster=i, kind=kind, group=group,
+                          names=tuple(self.arrays.names[j] for j in group), rho=frac,
+                          source="effectiveness", fraction=frac)
+        return self._isolate_opposite(found, avail), found
 
     def _remembered(self, pred: Prediction) -> Prediction:
         """``pred`` with the commanded effect of the relative dead zone kept from the last
@@ -453,6 +505,10 @@ class FlightSoftware:
     def _learn(self, eps: np.ndarray, pred: Prediction, avail: np.ndarray) -> None:
         """One tick of the effectiveness learning (and the latency it may learn)."""
         self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat)
+        dc = self.detector.cfg
+        if dc.weak_below is not None:
+            self._weak = self.effectiveness.weak(dc.weak_below, dc.weak_sigma, dc.weak_burns,
+                                                 avail)
         if pred.deff_dlat is not None:
             self.model.set_latency_offset(self.effectiveness.latency_s)
         if self.detector.quiet():
