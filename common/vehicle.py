@@ -302,6 +302,16 @@ class DetectorCfg(_Model):
     weak_below: float | None = Field(default=None, gt=0.0, lt=1.0)
     weak_sigma: float = Field(default=3.0, ge=0.0, le=10.0)
     weak_burns: int = Field(default=8, ge=2, le=64)
+    # Leak-fit test (an integrating test of the no-command evidence): over the last
+    # ``leak_fit_ticks`` ticks the raw residual (3 axes) is fitted by each thruster's leak
+    # (its closed-valve time times its acceleration, one parameter of positive size); the best
+    # fit, when its leak is at least ``leak_fit_min`` of the thrust, ``leak_fit_sigma``
+    # standard errors from 0, and clearly better than every other explanation, for
+    # ``leak_fit_hold`` ticks in a row, is a thruster stuck on. None: off.
+    leak_fit_min: float | None = Field(default=None, gt=0.0, lt=1.0)
+    leak_fit_sigma: float = Field(default=6.0, ge=0.0, le=100.0)
+    leak_fit_ticks: int = Field(default=25, ge=3, le=1000)
+    leak_fit_hold: int = Field(default=5, ge=1, le=1000)
     # A commanded-evidence detection whose estimated thrust fraction is at least this is
     # "degraded" (with the fraction), below it "fails to fire". chosen: halfway between a
     # thruster that gives nothing and the smallest degradation worth reporting (30 %).

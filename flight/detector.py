@@ -59,9 +59,11 @@ class Detection:
     direction (indices, sorted, includes ``thruster``); ``kind`` ``stuck_on`` or
     ``fail_to_fire``, ``degraded`` or ``gyro_fault`` (a sensor fault: ``thruster`` is -1, the
     group empty, ``names`` the fault's kind, ``flight.gyro_check``); ``rho`` the residual value
-    at the crossing (the thrust fraction for ``effectiveness``); ``source`` ``residual`` (seed
+    at the crossing (the thrust fraction for ``effectiveness``, the fitted leak for
+    ``leak_fit``); ``source`` ``residual`` (seed
     000/003), ``kalman`` (seed 002 leak test), ``effectiveness`` (the burn-fraction test,
-    ``Effectiveness.weak``), ``gyro``, or ``isolation`` (renamed, or decided after a probe, by
+    ``Effectiveness.weak``), ``leak_fit`` (the leak-fit test, ``flight.software``), ``gyro``,
+    or ``isolation`` (renamed, or decided after a probe, by
     the flight's isolation of opposite thrusters, ``flight.software``); ``fraction`` the
     estimated thrust fraction of a degraded (or failed) thruster.
     """

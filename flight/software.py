@@ -82,6 +82,9 @@ _PROBE_TICKS = 2
 # The burn-fraction test names no thruster when a leak of another explains the last ticks'
 # residual this much better (residual sum of squares) than its own deficit.
 _WEAK_LEAK_RSS = 0.8
+# The leak-fit test names a leak only when it leaves less than this share of what the best
+# other explanation leaves (another thruster's leak, a burning thruster's deficit).
+_LEAK_RIVAL_RSS = 0.7
 # What the isolation returns when neither hypothesis of a pair holds (_isolate_opposite).
 NEITHER = Detection(tick=-1, thruster=-1, kind="none", group=(), names=(), rho=0.0)
 # The probe starts before a crossing when a failing thruster's and its opposite's stuck-on
@@ -198,6 +201,8 @@ class FlightSoftware:
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
         self._weak: int | None = None  # the learnt-effectiveness test's thruster this tick
+        self._leak_window: list[tuple[np.ndarray, np.ndarray]] = []  # (raw residual, burns)
+        self._leak_streak: tuple[int, int] = (-1, 0)  # (thruster, ticks in a row)
         # (observer residual, burns, outside the dead zone, raw residual) of the last ticks
         self._window: list[tuple[np.ndarray, np.ndarray, bool, np.ndarray, int]] = []
         # Commanded effect kept for the relative dead zone (detector.relative_dead_zone_memory).
@@ -356,6 +361,7 @@ class FlightSoftware:
                 # ticks); its learning, deferred, is dropped.
                 self.detector.rebaseline(hold_ticks=0)
                 self._window = []
+                self._leak_window = []
             elif deferred is not None:
                 self._learn(*deferred)
             held, self._held = self._held, None
@@ -396,11 +402,66 @@ class FlightSoftware:
         if weak is not None and det is None and self.detector.latched is None \
                 and self._probe is None and not self._gyro_suspect() and self.fdir.available[weak]:
             det = self._settle(*self._weak_detection(weak))
+        dc = self.detector.cfg
+        if dc.leak_fit_min is not None and det is None and self.detector.latched is None \
+                and self._probe is None and not self._gyro_suspect():
+            det = self._leak_fit()
         self._det = det
         if det is not None:
             resp = self.fdir.handle(det.kind, det)
             if resp.rebaseline:
                 self.rebaseline()
+
+    def _leak_fit(self) -> Detection | None:
+        """Leak-fit test (``DetectorCfg.leak_fit_*``): the stuck-on detection it makes on this
+        tick, or None."""
+        dc = self.detector.cfg
+        win = self._leak_window
+        if len(win) < dc.leak_fit_ticks:
+            self._leak_streak = (-1, 0)
+            return None
+        avail = self.fdir.available
+        sw = 1.0 / np.sqrt(np.array([w[2] for w in win]))     # (W,) 1 / sigma per tick
+        raw = np.array([w[0] for w in win]) * sw[:, None]      # (W, 3) in sigmas
+        eff = np.array([w[1] for w in win])                    # (W, N)
+        mu = self.arrays.mu_B_rad_s2
+        closed = (self.h - np.clip(eff, 0.0, self.h)) * sw[:, None]
+        yy = float((raw * raw).sum())
+        fits = []
+        for j in np.flatnonzero(avail):
+            x = closed[:, j][:, None] * mu[j][None, :]
+            xx, xy = float((x * x).sum()), float((x * raw).sum())
+            if xx <= 0.0 or xy <= 0.0:
+                continue
+            rss = max(yy - xy * xy / xx, 0.0)
+            c = xy / xx
+            se = math.sqrt(max(rss / max(raw.size - 1, 1), 1.0) / xx)
+            fits.append((rss, c, se, int(j)))
+        if not fits:
+            self._leak_streak = (-1, 0)
+            return None
+        fits.sort()
+        rss, c, se, j = fits[0]
+        group = self.detector.groups[j]
+        rival = next((f[0] for f in fits[1:] if f[3] not in group), None)
+        # A deficit of a thruster that burnt (a degraded one) explains a residual against it
+        k = self.effectiveness.k
+        for i in np.flatnonzero(avail & (eff > 0.0).any(axis=0)):
+            x = -(k[i] * eff[:, i] * sw)[:, None] * mu[i][None, :]
+            rd = _rss_one(raw, x)
+            rival = rd if rival is None else min(rival, rd)
+        ok = (c >= dc.leak_fit_min and c >= dc.leak_fit_sigma * se
+              and (rival is None or rss < _LEAK_RIVAL_RSS * rival))
+        streak = self._leak_streak[1] + 1 if ok and self._leak_streak[0] == j else int(ok)
+        self._leak_streak = (j if ok else -1, streak)
+        if not ok or streak < dc.leak_fit_hold:
+            return None
+        self._leak_streak = (-1, 0)
+        g = tuple(x for x in group if avail[x])
+        found = Detection(tick=self._tick, thruster=j, kind=STUCK_ON, group=g,
+                          names=tuple(self.arrays.names[x] for x in g), rho=c,
+                          source="leak_fit", fraction=None)
+        return self._settle(found, found)
 
     def _weak_detection(self, i: int) -> tuple[Detection | None, Detection | None]:
         """The burn-fraction test named thruster ``i``: ``(what is named, what was found)`` for
@@ -479,6 +540,13 @@ class FlightSoftware:
                                  np.asarray(dw if raw is None else raw, dtype=float),
                                  self.effectiveness.updates))
             del self._window[:-_ISOLATION_TICKS]
+            # Each tick's variance: the noise (a third of the dead zone) and what the learning
+            # does not know yet of the burning thrusters' thrust (weighted least squares).
+            var = (self.detector.dead_zone_rad_s() / 3.0) ** 2 + float(np.trace(
+                self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat))) / 3.0
+            self._leak_window.append((np.asarray(dw if raw is None else raw, dtype=float),
+                                      np.asarray(pred.eff_s, float), var))
+            del self._leak_window[:-self.detector.cfg.leak_fit_ticks]
             if self._probe is not None:
                 held_det, pair, left = self._probe
                 if held_det is None:  # a probe before any crossing: the detector goes on
@@ -637,6 +705,7 @@ class FlightSoftware:
         if det is NEITHER:
             self.detector.rebaseline(hold_ticks=0)
             self._window = []
+            self._leak_window = []
             self._probe = None
             if self.kalman is not None:
                 self.kalman.reset(self._phi_meas, self._obs.omega_hat_B_rad_s)
@@ -765,6 +834,7 @@ class FlightSoftware:
         self._held = None
         self._deferred_learning = None
         self._window = []
+        self._leak_window = []
         self._probe = None
         self.gyro_check.forget_pending()
         self.gyro_check.restart_noise()
