@@ -200,8 +200,9 @@ class FlightSoftware:
                                     hold_rad_s=dc.gyro_hold_rad_s)
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
-        self._weak: int | None = None  # the learnt-effectiveness test's thruster this tick
-        self._leak_window: list[tuple[np.ndarray, np.ndarray]] = []  # (raw residual, burns)
+        self._weak: int | None = None  # the burn-fraction test's thruster this tick
+        # (raw residual, burns, variance) of the last ticks, for the leak-fit test
+        self._leak_window: list[tuple[np.ndarray, np.ndarray, float]] = []
         self._leak_streak: tuple[int, int] = (-1, 0)  # (thruster, ticks in a row)
         # (observer residual, burns, outside the dead zone, raw residual) of the last ticks
         self._window: list[tuple[np.ndarray, np.ndarray, bool, np.ndarray, int]] = []
@@ -540,13 +541,13 @@ class FlightSoftware:
                                  np.asarray(dw if raw is None else raw, dtype=float),
                                  self.effectiveness.updates))
             del self._window[:-_ISOLATION_TICKS]
-            # Each tick's variance: the noise (a third of the dead zone) and what the learning
-            # does not know yet of the burning thrusters' thrust (weighted least squares).
-            var = (self.detector.dead_zone_rad_s() / 3.0) ** 2 + float(np.trace(
-                self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat))) / 3.0
-            self._leak_window.append((np.asarray(dw if raw is None else raw, dtype=float),
-                                      np.asarray(pred.eff_s, float), var))
-            del self._leak_window[:-self.detector.cfg.leak_fit_ticks]
+            if self.detector.cfg.leak_fit_min is not None:  # only for the leak-fit test
+                # Each tick's variance: the noise (a third of the dead zone) and what the
+                # learning does not know yet of the burning thrusters' thrust (weighted fit).
+                var = (self.detector.dead_zone_rad_s() / 3.0) ** 2 + float(np.trace(
+                    self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat))) / 3
+                self._leak_window.append((self._window[-1][3], self._window[-1][1], var))
+                del self._leak_window[:-self.detector.cfg.leak_fit_ticks]
             if self._probe is not None:
                 held_det, pair, left = self._probe
                 if held_det is None:  # a probe before any crossing: the detector goes on
