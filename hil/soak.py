@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import tempfile
 import threading
 import time
@@ -149,11 +150,18 @@ def _scenario_file(args, tmp: Path) -> Path:
 
 
 def _cmd_soak(args) -> int:
+    out = Path(args.out or f"runs/soak-{args.vehicle}").resolve()
+    tmp = Path(tempfile.mkdtemp(prefix="hil-soak-"))
+    try:
+        return _soak(args, out, tmp)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)  # the generated scenario file
+
+
+def _soak(args, out: Path, tmp: Path) -> int:
     from hil.config import load_scenario
     from hil.run import _batch_policy, maybe_in_netns, maybe_in_uml, resolve_bus, supervise
 
-    out = Path(args.out or f"runs/soak-{args.vehicle}").resolve()
-    tmp = Path(tempfile.mkdtemp(prefix="hil-soak-"))
     scenario = _scenario_file(args, tmp)
     resolve_bus(args, load_scenario(scenario))  # --bus, else the scenario's bus:, else can
     argv = ["soak", "--hours", str(args.hours), "--mode", args.mode, "--out", str(out),

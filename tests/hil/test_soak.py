@@ -37,3 +37,16 @@ def test_last_record_time_reads_the_tail_and_skips_a_torn_line(tmp_path) -> None
 def test_rss_of_this_process_and_of_a_gone_one() -> None:
     assert rss_kb(os.getpid()) > 1000
     assert rss_kb(2**22 + 12345) is None
+
+
+def test_soak_leaves_no_temporary_folder_behind(tmp_path, monkeypatch, capsys) -> None:
+    """The generated scenario lives in a temporary folder that goes with the command, also
+    when the command stops on an argument error."""
+    import tempfile
+
+    from hil.cli import main as hil_main
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    assert hil_main(["soak", "--hours", "1", "--bus", "lcm", "--interface", "socketcan"]) == 2
+    assert "--interface" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
