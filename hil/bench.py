@@ -425,7 +425,8 @@ def _check_args(args) -> None:
         args.pings = DEFAULT_PINGS
     if "hostile" not in args.parts:
         for flag, val in (("--hostile-loads", args.hostile_loads),
-                          ("--hostile-duration", args.hostile_duration)):
+                          ("--hostile-duration", args.hostile_duration),
+                          ("--hostile-sender", args.hostile_sender)):
             if val is not None:
                 raise UsageError(f"hil bench: {flag}: expected it only with --parts hostile, "
                                  f"got {val!r} with --parts {','.join(args.parts)}")
@@ -433,6 +434,8 @@ def _check_args(args) -> None:
         args.hostile_loads = ",".join(DEFAULT_HOSTILE_LOADS)
     if args.hostile_duration is None:
         args.hostile_duration = DEFAULT_HOSTILE_DURATION_S
+    if args.hostile_sender is None:
+        args.hostile_sender = "auto"
     for name, value, lo in (("--duration", args.duration, 2.0),
                             ("--lockstep-duration", args.lockstep_duration, 1.0),
                             ("--hostile-duration", args.hostile_duration, 2.0),
@@ -490,7 +493,7 @@ def _cmd_bench(args) -> int:
               args.channel])
     if "hostile" in args.parts:
         argv += ["--hostile-loads", args.hostile_loads, "--hostile-duration",
-                 str(args.hostile_duration)]
+                 str(args.hostile_duration), "--hostile-sender", args.hostile_sender]
     argv += ["--stress"] * bool(args.stress) + ["--rt"] * bool(args.rt) + \
         ["--no-plots"] * bool(args.no_plots)
     rc = _maybe_in_uml(args, argv)
@@ -536,6 +539,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hostile-loads", metavar="LOAD,...",
                    help="hostile part: none or CLASS:RATE (frames/s) per run; CLASS one of "
                         f"{', '.join(FLOOD_CLASSES)} (default: {','.join(DEFAULT_HOSTILE_LOADS)})")
+    p.add_argument("--hostile-sender", choices=("auto", "kernel", "python"),
+                   help="hostile part: who sends the flood (hil flood --sender; default auto: "
+                        "the kernel's CAN broadcast manager for the classes that do not "
+                        "listen)")
     p.add_argument("--hostile-duration", type=float,
                    help=f"hostile part: seconds of each real-time run (default "
                         f"{DEFAULT_HOSTILE_DURATION_S:g})")

@@ -1,8 +1,19 @@
 """`hil flood`: a hostile third node on the bus (docs/hostile-bus.md).
 
 ``hil flood --class CLASS --rate HZ --seconds S`` sends frames at ``rate`` per second for
-``seconds`` (0: until stopped) on ``--interface`` / ``--channel`` (vcan0 by default), in
-bursts of one millisecond's worth (``sendmmsg`` on SocketCAN), seeded by ``--seed``:
+``seconds`` (0: until stopped) on ``--interface`` / ``--channel`` (vcan0 by default), seeded
+by ``--seed``. Two senders (``--sender``):
+
+* ``kernel`` (SocketCAN only, the classes that do not listen): the kernel's broadcast manager
+  (``can-bcm``) sends the frames from its timers, so the flood costs no process wake-ups and
+  reaches rates a Python loop cannot inside user-mode Linux. The frames are generated once from
+  the seed, 256 per timer, and sent in turn, again and again; the rate is shared by
+  ``ceil(rate / 500)`` timers. What was sent is read back from the kernel at the end (exact);
+* ``python``: bursts of one millisecond's worth from a loop (``sendmmsg`` on SocketCAN).
+
+``auto`` (the default) takes ``kernel`` where it can and says which in the result.
+
+The classes:
 
 * ``foreign``: identifiers that are not in the catalog, random payloads;
 * ``catalog-bad-crc``: the catalog's identifiers with random payloads whose E2E CRC is made
@@ -200,12 +211,140 @@ def _listen(bus: can.BusABC, heard: Listener) -> None:
         heard.see(from_can_message(m))
 
 
+SENDERS = ("auto", "kernel", "python")
+BCM_NFRAMES = 256  # frames per broadcast-manager timer (the kernel's MAX_NFRAMES)
+BCM_RATE_PER_TIMER_HZ = 500.0  # one kernel timer at a few kHz falls behind in user-mode Linux
+BCM_COUNT_UNLIMITED = 2**31 - 1
+
+
+class KernelFlood:
+    """Frames sent by the kernel's CAN broadcast manager (``can-bcm``): ``len(groups)``
+    cyclic transmit jobs, each sending its frames in turn every ``period_s`` until it has
+    sent ``count`` (python-can's BCM message layout, our own job control: python-can's
+    cyclic task wants one identifier per job and does not read back what was sent)."""
+
+    def __init__(self, channel: str, groups: list[list[Frame]], period_s: float,
+                 count: int) -> None:
+        import ctypes
+
+        from can.interfaces.socketcan import constants as bcm
+        from can.interfaces.socketcan import socketcan as sc
+
+        self._sc, self._bcm, self._ctypes = sc, bcm, ctypes
+        self.groups = groups
+        self.count = count
+        self.sock = sc.create_bcm_socket(channel)  # OSError without can-bcm or the channel
+        usec = max(1, round(period_s * 1e6))
+        try:
+            for job, frames in enumerate(groups):
+                head = sc.build_bcm_header(bcm.CAN_BCM_TX_SETUP,
+                                           bcm.SETTIMER | bcm.STARTTIMER, count,
+                                           usec // 1_000_000, usec % 1_000_000, 0, 0, job,
+                                           len(frames))
+                body = b"".join(sc.build_can_frame(to_can_message(f)) for f in frames)
+                self.sock.send(head + body)
+        except OSError:
+            self.sock.close()
+            raise
+
+    def sent_per_job(self) -> list[int]:
+        """Frames each job has sent so far (its count left, read back from the kernel)."""
+        sc, bcm = self._sc, self._bcm
+        size = self._ctypes.sizeof(sc.BcmMsgHead)
+        out = []
+        for job in range(len(self.groups)):
+            self.sock.send(sc.build_bcm_header(bcm.CAN_BCM_TX_READ, 0, 0, 0, 0, 0, 0, job, 0))
+            while True:
+                reply = self.sock.recv(size + 64 * (BCM_NFRAMES + 1))
+                head = sc.BcmMsgHead.from_buffer_copy(reply[:size])
+                if head.can_id == job:
+                    break
+            out.append(self.count - int(head.count))
+        return out
+
+    def stop(self) -> list[int]:
+        """Stop every job; returns what each sent."""
+        try:
+            sent = self.sent_per_job()
+            for job in range(len(self.groups)):
+                self.sock.send(self._sc.build_bcm_tx_delete_header(job, 0))
+        finally:
+            self.sock.close()
+        return sent
+
+
+def by_id_of_cycles(groups: list[list[Frame]], sent: list[int]) -> Counter[int]:
+    """Frames per identifier when each group's frames went out in turn, ``sent[k]`` of them."""
+    out: Counter[int] = Counter()
+    for frames, m in zip(groups, sent, strict=True):
+        full, part = divmod(m, len(frames))
+        for i, f in enumerate(frames):
+            out[f.arbitration_id] += full + (1 if i < part else 0)
+    return out
+
+
+def _kernel_flood(kind: str, rate_hz: float, seconds: float, channel: str, seed: int,
+                  stop: Callable[[], bool]) -> dict[str, Any]:
+    import math
+
+    rng = np.random.default_rng(seed)
+    protector = e2e.Protector()
+    jobs = max(1, math.ceil(rate_hz / BCM_RATE_PER_TIMER_HZ))
+    per_job_hz = rate_hz / jobs
+    groups = [make_frames(kind, BCM_NFRAMES, rng, protector) for _ in range(jobs)]
+    count = (max(1, math.ceil(per_job_hz * seconds)) if seconds > 0
+             else BCM_COUNT_UNLIMITED)
+    t0 = time.monotonic()
+    kf = KernelFlood(channel, groups, 1.0 / per_job_hz, count)
+    try:
+        while not stop() and (seconds <= 0 or time.monotonic() - t0 < seconds + 0.05):
+            time.sleep(0.02)
+    finally:
+        sent = kf.stop()
+    took = time.monotonic() - t0
+    by_id = by_id_of_cycles(groups, sent)
+    return {"class": kind, "rate_hz": rate_hz, "sender": "kernel", "timers": jobs,
+            "sent": sum(sent), "seconds": round(took, 3),
+            "rate_reached_hz": round(sum(sent) / max(took, 1e-9), 1), "groups": 0,
+            "by_id": {str(k): v for k, v in sorted(by_id.items()) if v}}
+
+
 def flood(kind: str, rate_hz: float, seconds: float, interface: str, channel: str,
-          seed: int, stop: Callable[[], bool] = lambda: False) -> dict[str, Any]:
-    """Send the flood; returns what was sent: ``{"class", "rate_hz", "sent", "seconds",
-    "rate_reached_hz", "groups", "by_id": {frame id: frames}}``."""
+          seed: int, stop: Callable[[], bool] = lambda: False,
+          sender: str = "auto") -> dict[str, Any]:
+    """Send the flood; returns what was sent: ``{"class", "rate_hz", "sender", "sent",
+    "seconds", "rate_reached_hz", "groups", "by_id": {frame id: frames}}`` (``sender_note``:
+    why ``auto`` did not take the kernel)."""
     if kind not in CLASSES:
         raise ValueError(f"flood: class: expected one of {', '.join(CLASSES)}, got {kind!r}")
+    if sender not in SENDERS:
+        raise ValueError(f"flood: sender: expected one of {', '.join(SENDERS)}, "
+                         f"got {sender!r}")
+    note = None
+    if sender != "python":
+        why = ("the class listens to the bus first" if kind in LISTENING
+               else None if interface == "socketcan"
+               else f"interface {interface!r} has no broadcast manager")
+        if why and sender == "kernel":
+            raise ValueError(f"flood: sender kernel: expected a class that does not listen "
+                             f"on interface socketcan, got class {kind!r} on {interface!r}")
+        if not why:
+            try:
+                return _kernel_flood(kind, rate_hz, seconds, channel, seed, stop)
+            except OSError as e:
+                if sender == "kernel":
+                    raise ValueError(f"flood: sender kernel: expected the CAN broadcast "
+                                     f"manager on {channel!r}, got {e}") from e
+                why = f"no broadcast manager on {channel!r} ({e})"
+        note = why
+    res = _python_flood(kind, rate_hz, seconds, interface, channel, seed, stop)
+    if note:
+        res["sender_note"] = note
+    return res
+
+
+def _python_flood(kind: str, rate_hz: float, seconds: float, interface: str, channel: str,
+                  seed: int, stop: Callable[[], bool]) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     protector = e2e.Protector()
     heard = Listener()
@@ -252,7 +391,8 @@ def flood(kind: str, rate_hz: float, seconds: float, interface: str, channel: st
     finally:
         bus.shutdown()
     took = time.monotonic() - t0
-    return {"class": kind, "rate_hz": rate_hz, "sent": sent, "seconds": round(took, 3),
+    return {"class": kind, "rate_hz": rate_hz, "sender": "python", "sent": sent,
+            "seconds": round(took, 3),
             "rate_reached_hz": round(sent / max(took, 1e-9), 1), "groups": groups,
             "by_id": {str(k): v for k, v in sorted(by_id.items())}}
 
@@ -261,13 +401,19 @@ def _cmd(args) -> int:
     stopped = []
     for sig in (signal.SIGINT, signal.SIGTERM):  # stop cleanly and say what was sent
         signal.signal(sig, lambda *_: stopped.append(True))
-    res = flood(args.kind, args.rate, args.seconds, args.interface, args.channel, args.seed,
-                stop=lambda: bool(stopped))
+    try:
+        res = flood(args.kind, args.rate, args.seconds, args.interface, args.channel,
+                    args.seed, stop=lambda: bool(stopped), sender=args.sender)
+    except ValueError as e:
+        print(f"hil {e}", file=sys.stderr)
+        return 2
     if args.json:
         print(json.dumps(res), flush=True)
     else:
         print(f"flood {args.kind}: {res['sent']} frames in {res['seconds']:.1f} s "
-              f"({res['rate_reached_hz']:.0f}/s)", flush=True)
+              f"({res['rate_reached_hz']:.0f}/s, sent by {res['sender']}"
+              + (f": {res['sender_note']}" if res.get("sender_note") else "") + ")",
+              flush=True)
     return 0
 
 
@@ -281,6 +427,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--json", action="store_true",
                    help="print what was sent as one JSON line (frames per identifier too)")
+    p.add_argument("--sender", choices=SENDERS, default="auto",
+                   help="kernel: the CAN broadcast manager sends (SocketCAN, classes that do "
+                        "not listen); python: a send loop; auto (default): kernel where it "
+                        "can")
     p.add_argument("--interface", default="socketcan")
     p.add_argument("--channel", default="vcan0")
     p.set_defaults(func=_cmd)

@@ -124,7 +124,7 @@ def run_figures(load: str, summary: dict, plant_records: list[dict],
     failures = [str(f) for f in summary.get("run_failures") or []]
     return {
         "load": load,
-        "flood": {k: flood.get(k) for k in ("sent", "seconds", "rate_reached_hz")}
+        "flood": {k: flood.get(k) for k in ("sent", "seconds", "rate_reached_hz", "sender")}
         if flood else None,
         "flight_ticks": int(summary.get("flight_ticks") or 0),
         "due": int(round(duration_s / tick_s)),
@@ -204,9 +204,10 @@ def check_rows(report: dict) -> list[str]:
 def format_rows(host: dict) -> list[str]:
     """The hostile part of the bench table."""
     lines = [f"hostile bus: {host.get('vehicle')}, {host.get('duration_s')} s real time per "
-             f"load, a third process flooding (rate asked, reached)",
+             f"load, a third process flooding (rate asked, reached; sent by k: the kernel's "
+             f"broadcast manager, p: a Python loop)",
              f"  where: {host.get('where_text', '')}",
-             f"  {'load':<24}{'reached/s':>10}{'ticks':>10}{'missed':>8}{'safe':>6}{'cmds':>6}"
+             f"  {'load':<24}{'reached/s':>12}{'ticks':>10}{'missed':>8}{'safe':>6}{'cmds':>6}"
              f"{'jit p99':>9}{'kdrop p/f':>11}{'forged':>8}  held  <2x  rejected (p: plant, "
              f"f: flight)"]
     for r in host.get("runs") or []:
@@ -217,7 +218,8 @@ def format_rows(host: dict) -> list[str]:
         jit = r.get("jitter_p99_ms")
         cmds = (r.get("forged_used_by_kind") or {}).get("thr_cmd_applied", "-")
         lines.append(
-            f"  {r['load']:<24}{fl.get('rate_reached_hz', '-')!s:>10}"
+            f"  {r['load']:<24}"
+            f"{str(fl.get('rate_reached_hz', '-')) + ' ' + str(fl.get('sender', '-'))[0]:>12}"
             f"{str(r['flight_ticks']) + '/' + str(r['due']):>10}{r['missed_releases']:>8}"
             f"{r['plant_safe_records']:>6}{cmds!s:>6}"
             f"{'-' if jit is None else f'{jit:.1f}':>9}"
@@ -241,9 +243,11 @@ def format_rows(host: dict) -> list[str]:
 # ============================================================================ measurement
 
 
-def _flood_cmd(kind: str, rate: float, channel: str, seed: int) -> list[str]:
+def _flood_cmd(kind: str, rate: float, channel: str, seed: int,
+               sender: str = "auto") -> list[str]:
     return [sys.executable, "-m", "hil.flood", "--class", kind, "--rate", f"{rate:g}",
-            "--seconds", "0", "--seed", str(seed), "--channel", channel, "--json"]
+            "--seconds", "0", "--seed", str(seed), "--channel", channel, "--json",
+            "--sender", sender]
 
 
 def run_one(kind: str, rate: float, scenario: dict, out: Path, args,
@@ -260,7 +264,8 @@ def run_one(kind: str, rate: float, scenario: dict, out: Path, args,
     path.write_text(yaml.safe_dump(scenario, sort_keys=False))
     flood = None
     if kind != "none":
-        flood = subprocess.Popen(_flood_cmd(kind, rate, args.channel, seed),
+        flood = subprocess.Popen(_flood_cmd(kind, rate, args.channel, seed,
+                                            getattr(args, "hostile_sender", None) or "auto"),
                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                  cwd=REPO_ROOT)
     flood_res: dict | None = None

@@ -108,3 +108,37 @@ def test_forged_flood_over_virtual_goes_through_every_secured_message_with_and_w
     assert all(by_id.get(i, 0) >= 2 for i in firsts), by_id
     assert all(0 < by_id.get(m, 0) < by_id[i] for i, m in zip(firsts, macs, strict=True)), by_id
     assert res["groups"] == sum(by_id[i] for i in firsts)
+
+
+def test_frames_per_identifier_of_cycled_groups_match_sending_them_in_turn():
+    """Oracle: send each group's frames in turn, one by one (itertools.cycle), and count."""
+    from collections import Counter
+    from itertools import cycle, islice
+
+    from hil.flood import by_id_of_cycles
+
+    rng = np.random.default_rng(3)
+    groups = [make_frames("catalog-bad-crc", n, rng, e2e.Protector()) for n in (7, 256, 1)]
+    for sent in ([0, 0, 0], [3, 255, 5], [7 * 4 + 2, 256 * 3, 0], [1000, 1, 9]):
+        want: Counter[int] = Counter()
+        for frames, m in zip(groups, sent, strict=True):
+            want.update(f.arbitration_id for f in islice(cycle(frames), m))
+        got = by_id_of_cycles(groups, sent)
+        assert +got == +want and sum(got.values()) == sum(sent)
+
+
+def test_sender_choice_is_said_and_a_kernel_sender_that_cannot_be_had_is_refused():
+    import pytest
+
+    res = flood("foreign", 200, 0.1, "virtual", "t_flood_sender", 1)  # auto on virtual
+    assert res["sender"] == "python" and "broadcast manager" in res["sender_note"]
+    res = flood("foreign", 200, 0.1, "virtual", "t_flood_sender", 1, sender="python")
+    assert res["sender"] == "python" and "sender_note" not in res
+    with pytest.raises(ValueError, match=r"^flood: sender kernel: expected .*got class "
+                                         r"'foreign' on 'virtual'$"):
+        flood("foreign", 200, 0.1, "virtual", "t_flood_sender", 1, sender="kernel")
+    with pytest.raises(ValueError, match=r"got class 'replay' on 'socketcan'$"):
+        flood("replay", 200, 0.1, "socketcan", "vcan0", 1, sender="kernel")
+    with pytest.raises(ValueError, match=r"^flood: sender: expected one of auto, kernel, "
+                                         r"python, got 'bcm'$"):
+        flood("foreign", 200, 0.1, "virtual", "t_flood_sender", 1, sender="bcm")
