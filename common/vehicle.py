@@ -302,6 +302,11 @@ class DetectorCfg(_Model):
     weak_below: float | None = Field(default=None, gt=0.0, lt=1.0)
     weak_sigma: float = Field(default=3.0, ge=0.0, le=10.0)
     weak_burns: int = Field(default=8, ge=2, le=64)
+    # With the learnt dead zone (relative_dead_zone_sigma): the flex a change of the burns
+    # puts into the gyro at once, as a standard deviation per axis of this share of the change
+    # of the burning thrusters' rate change along that axis (sum_j |mu_j,axis| eff_j) from
+    # the last tick: a burst after a coast rings the structure, steady firing does not. 0: none.
+    flex_share: float = Field(default=0.0, ge=0.0, le=1.0)
     # Leak-fit test (an integrating test of the no-command evidence): over the last
     # ``leak_fit_ticks`` ticks the raw residual (3 axes) is fitted by each thruster's leak
     # (its closed-valve time times its acceleration, one parameter of positive size); the best

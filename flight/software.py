@@ -208,6 +208,7 @@ class FlightSoftware:
         self._window: list[tuple[np.ndarray, np.ndarray, bool, np.ndarray, int]] = []
         # Commanded effect kept for the relative dead zone (detector.relative_dead_zone_memory).
         self._commanded_kept = 0.0
+        self._u_abs_last = np.zeros(3)  # the last tick's burns along each axis (flex_share)
         # (detection held back, the pair left out of the allocation, ticks left) while probing
         self._probe: tuple[Detection | None, tuple[int, int], int] | None = None
         self._probed: dict[tuple[int, int], int] = {}
@@ -381,6 +382,8 @@ class FlightSoftware:
                                      learn=not verdict.defer_learning, raw=verdict.residual)
                 det = det or d_now
         self._w_prev = w_hat.copy()
+        if self.detector.cfg.flex_share > 0.0:
+            self._u_abs_last = self._u_abs(pred, avail)
         if self.kalman is not None and pred is not None:
             burn_dw = self.arrays.mu_B_rad_s2.T @ (self.effectiveness.k * pred.burn_s)
             on_axis = np.abs(self.detector.e_B[pred.burning]).max(axis=0, initial=0.0) > 0.1
@@ -512,13 +515,26 @@ class FlightSoftware:
         thrusters (the learnt ellipsoid, the fixed one, or absolute plus relative)?"""
         det = self.detector
         if det.cfg.relative_dead_zone_sigma is not None and pred.eff_s is not None:
-            return det.in_learnt_ellipsoid(
-                dw, self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat))
+            cov = self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat)
+            share = det.cfg.flex_share
+            if share > 0.0:
+                # The mode answers the change of the burns (steady firing against a leak
+                # holds a steady deflection): the burns along each axis against the last
+                # tick's.
+                step = self._u_abs(pred, avail) - self._u_abs_last
+                cov = cov + np.diag((share * step) ** 2)
+            return det.in_learnt_ellipsoid(dw, cov)
         if det.cfg.relative_dead_zone_across is not None and pred.eff_s is not None:
             m = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) * np.abs(
                 self.effectiveness.k * pred.eff_s)
             return det.in_ellipsoid(dw, m)
         return bool(det.project(dw, pred.dw_thr_abs_rad_s)[2])
+
+    def _u_abs(self, pred: Prediction, avail: np.ndarray) -> np.ndarray:
+        """(3,) the burning thrusters' rate change along each axis, sum_j |mu_j,axis| eff_j."""
+        if pred is None or pred.eff_s is None:
+            return np.zeros(3)
+        return np.abs(self.arrays.mu_B_rad_s2).T @ np.abs(np.where(avail, pred.eff_s, 0.0))
 
     def _commit(self, tick: int, dw: np.ndarray, pred: Prediction, avail: np.ndarray,
                 eps: np.ndarray, learn: bool = True,
