@@ -284,6 +284,9 @@ class DetectorCfg(_Model):
             raise _FieldError("relative_dead_zone_memory", "0 when relative_dead_zone is 0 "
                               "(it keeps that dead zone's commanded effect)",
                               self.relative_dead_zone_memory)
+        if self.flex_share > 0.0 and self.relative_dead_zone_sigma is None:
+            raise _FieldError("flex_share", "0 without relative_dead_zone_sigma (it widens the "
+                              "learnt dead zone only)", self.flex_share)
         if self.weak_below is not None and self.effectiveness_bound <= 0.0:
             raise _FieldError("weak_below", "none when effectiveness_bound is 0 (the test "
                               "reads the learnt effectiveness)", self.weak_below)

@@ -92,6 +92,11 @@ def test_flex_share_is_bounded() -> None:
         DetectorCfg(flex_share=1.5)
     with pytest.raises(ValueError, match="flex_share"):
         DetectorCfg(flex_share=-0.1)
+    from common.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"flex_share: expected 0 without "
+                                          r"relative_dead_zone_sigma.*got 0\.1"):
+        load_vehicle("generic", {"detector": {"flex_share": 0.1}})  # accepted and ignored
 
 
 def _campaign_run(tmp_path, campaign: str, run: int, share: float | None = None):
