@@ -68,7 +68,8 @@ def test_iss_rs_finds_a_stuck_thruster_the_controller_fights() -> None:
     init = InitialCfg(attitude=AttitudeCfg(axis=(0.823, 0.262, 0.504), angle_deg=21.8),
                       rate_B_deg_s=(-0.098, 0.075, 0.080))
     fault = [FaultSpec(kind="stuck_on", thruster="SM+yaw_I", t_s=22.2)]
-    fixed = {"detector": {"relative_dead_zone_sigma": None, "relative_dead_zone": 0.25}}
+    fixed = {"detector": {"relative_dead_zone_sigma": None, "relative_dead_zone": 0.25,
+                          "flex_share": 0.0}}
     learnt = {"detector": {"relative_dead_zone_sigma": KAPPA, "relative_dead_zone": 0.0}}
     dets_l, _, _ = _run("iss_rs", fault, 40.0, init=init, flight=learnt)
     assert dets_l and dets_l[0][0] >= 22.2, dets_l

@@ -129,4 +129,5 @@ def test_the_test_without_the_learning_is_refused() -> None:
                                           r"effectiveness_bound is 0.*got 0\.6"):
         load_vehicle("iss_rs", {"detector": {"effectiveness_bound": 0.0,
                                              "relative_dead_zone_sigma": None,
+                                             "flex_share": 0.0,
                                              "learn_latency_ms": 0.0}})
