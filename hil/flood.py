@@ -38,7 +38,9 @@ it is a test tool, not part of a run.
 
 from __future__ import annotations
 
+import ctypes
 import json
+import math
 import signal
 import sys
 import time
@@ -225,12 +227,10 @@ class KernelFlood:
 
     def __init__(self, channel: str, groups: list[list[Frame]], period_s: float,
                  count: int) -> None:
-        import ctypes
-
         from can.interfaces.socketcan import constants as bcm
         from can.interfaces.socketcan import socketcan as sc
 
-        self._sc, self._bcm, self._ctypes = sc, bcm, ctypes
+        self._sc, self._bcm = sc, bcm
         self.groups = groups
         self.count = count
         self.sock = sc.create_bcm_socket(channel)  # OSError without can-bcm or the channel
@@ -250,7 +250,7 @@ class KernelFlood:
     def sent_per_job(self) -> list[int]:
         """Frames each job has sent so far (its count left, read back from the kernel)."""
         sc, bcm = self._sc, self._bcm
-        size = self._ctypes.sizeof(sc.BcmMsgHead)
+        size = ctypes.sizeof(sc.BcmMsgHead)
         out = []
         for job in range(len(self.groups)):
             self.sock.send(sc.build_bcm_header(bcm.CAN_BCM_TX_READ, 0, 0, 0, 0, 0, 0, job, 0))
@@ -285,8 +285,6 @@ def by_id_of_cycles(groups: list[list[Frame]], sent: list[int]) -> Counter[int]:
 
 def _kernel_flood(kind: str, rate_hz: float, seconds: float, channel: str, seed: int,
                   stop: Callable[[], bool]) -> dict[str, Any]:
-    import math
-
     rng = np.random.default_rng(seed)
     protector = e2e.Protector()
     jobs = max(1, math.ceil(rate_hz / BCM_RATE_PER_TIMER_HZ))
