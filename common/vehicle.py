@@ -337,6 +337,19 @@ class DetectorCfg(_Model):
     # of the tick, is held a tick: kept out of the thruster evidence unless the next tick
     # repeats it along its direction (flight.gyro_check); None: the jump level.
     gyro_hold_rad_s: PosFloat | None = None
+    # A stuck-on named by a residual crossing on one tick waits for the next tick's raw
+    # residual (the measured rate change minus the model's) to go on along the thruster's
+    # direction, at least half of what the crossing tick had along it: a leak repeats every
+    # tick, a noisy sample is undone by the next one (differences of white noise), so the
+    # crossing is dropped and the evidence restarts. For a detector that decides on one tick
+    # (iss_rs: one tick above the dead zone crosses the threshold); costs one tick of latency.
+    confirm_stuck_on: bool = False
+    # The gyro's noise test on every tick, not only on quiet ones (flight.gyro_check: the raw
+    # residual's lag-one autocovariance reads the sensor's noise through the thrusters' errors):
+    # an axis noisier than this many times the gyro's noise_std_rad_s is a noise increase, and
+    # the gyro is suspect while it lasts. For a vehicle that fires on nearly every tick
+    # (iss_rs: 97 % of the ticks). None: quiet ticks only.
+    gyro_noise_all_ticks: PosFloat | None = None
 
 
 class KalmanCfg(_Model):

@@ -55,7 +55,17 @@ signatures no single thruster fault can produce are recognised:
   between -0.75 and 0; white noise's differences: -0.5, a ringing the observer does not follow:
   near +1, or near -1 at the Nyquist frequency). One step (a thruster starting, a torque) is
   one large difference (three: a second difference), not ten. The rates are with the
-  constants.
+  constants;
+* **noise increase on every tick** (``lag_noise_rad_s``, for a vehicle that fires on nearly
+  every tick and so has almost no quiet ticks): per axis, the raw residual's lag-one
+  autocovariance over the last ``_LAG_WINDOW`` consecutive ticks, ``-mean(r(k) r(k-1))``
+  without its ``_LAG_TRIM`` largest products. White sensor noise of sigma gives ``sigma^2``
+  (the residual holds it differenced) whatever else is independent from tick to tick (the
+  thrusters' errors); a leak or a slow ringing only lowers it. Above ``lag_noise_rad_s``
+  squared, on an axis whose lag-one correlation is at most ``-_LAG_WHITE``, for
+  ``noise_ticks`` ticks in a row: a noise increase; suspect from the first such tick, and
+  after the name until no axis's plain mean has read above ``_LAG_AGAIN`` of the level for
+  a whole window.
 
 While a jump waits for its next tick, and while the output is frozen or noisy, the gyro is
 *suspect*: the flight does not feed the tick to the thruster detector nor to the effectiveness
@@ -103,6 +113,20 @@ _ALONG, _ACROSS = 0.4, 0.1
 # more than the envelope's), after _SHARE_WARMUP thrust ticks; forgotten over ~50 ticks, each
 # tick capped at _SHARE_CAP times the mean.
 _SHARE_K, _SHARE_WARMUP, _SHARE_FORGET, _SHARE_CAP = 6.0, 25, 0.98, 3.0
+# Noise test on every tick (``lag_noise_rad_s``): the raw residual's lag-one autocovariance
+# over the last _LAG_WINDOW consecutive ticks, per axis. White sensor noise of sigma enters the
+# residual differenced (``n(k) - n(k-1)``), so ``-E[r(k) r(k-1)] = sigma^2`` whatever the
+# thrusters do: thrust errors of different ticks are independent (no product on average), a
+# leak or a slow flex ringing repeats (a negative contribution). Named when its square root
+# is above the level on an axis whose lag-one correlation is at most -_LAG_WHITE (the noise
+# dominates that axis's residual: -0.5 for noise alone). The level is the window's mean
+# without its _LAG_TRIM largest products per axis (a robust mean: one burst's timing error,
+# late in one tick and early in the next, gives two large products of the same sign, with the
+# ticks before and after it; noise gives many).
+# Once the noise is named, the gyro stays suspect until no axis's plain mean has read above
+# _LAG_AGAIN of the level for a whole window (the window's mean of products fluctuates by
+# half its value on white noise: a dwell, not one tick below).
+_LAG_WINDOW, _LAG_WHITE, _LAG_TRIM, _LAG_AGAIN = 30, 0.35, 2, 0.25
 
 
 @dataclass(frozen=True)
@@ -140,7 +164,8 @@ class GyroCheck:
     def __init__(self, jump_rad_s: float, noise_floor_rad_s: float, *,
                  explain_factor: float = 1.5, return_fraction: float = 0.3,
                  slow_forget: float = 0.995, noise_ticks: int = 3, warmup_ticks: int = 30,
-                 start_ticks: int = 2, hold_rad_s: float | None = None) -> None:
+                 start_ticks: int = 2, hold_rad_s: float | None = None,
+                 lag_noise_rad_s: float | None = None) -> None:
         self.jump_rad_s = float(jump_rad_s)
         self.hold_rad_s = self.jump_rad_s if hold_rad_s is None else float(hold_rad_s)
         # per axis: a third of the three axes' floor (sensor noise sigma: 18 sigma^2 for the
@@ -175,6 +200,13 @@ class GyroCheck:
         self._slow = np.zeros(3)
         self._quiet = 0
         self._over = 0
+        self.lag_noise2 = None if lag_noise_rad_s is None else float(lag_noise_rad_s) ** 2
+        self._lag: list[np.ndarray] = []      # -r(k) r(k-1), consecutive ticks
+        self._lag_sq: list[np.ndarray] = []   # r(k)^2 of the same ticks
+        self._lag_last: tuple[int, np.ndarray] | None = None
+        self._lag_over = 0
+        self._lag_calm = 0  # ticks in a row without noise after it was named
+        self.lag_sigma_rad_s = 0.0  # the largest axis's noise the lag test reads (0 until known)
 
     def forget_pending(self) -> None:
         """The flight changed the dynamics itself (an FDIR response): a held jump is not to be
@@ -228,6 +260,7 @@ class GyroCheck:
         dropped."""
         self._y_prev = np.asarray(y, dtype=float).copy()
         self._r_quiet = None
+        self._lag_last = None
         self.forget_pending()
 
     def _report(self, kind: str) -> str | None:
@@ -242,6 +275,8 @@ class GyroCheck:
         self._innovation = None if innovation is None else np.asarray(innovation, float)
         v = self._step(y, predicted_change, thrust_abs, increments)
         self._u_prev = None if increments is None else np.array(increments, dtype=float)
+        if self.lag_noise2 is not None:
+            v = self._lag_noise(v)
         if self._noisy_now and not v.suspect:
             # A gyro known to be noisy: no tick of it is thruster evidence.
             self._pending = None
@@ -400,6 +435,41 @@ class GyroCheck:
         v = self._noise(r if self._innovation is None else self._innovation, thrust_abs)
         v = replace(v, residual=r)
         return replace(v, drop_previous=True) if dropped else v
+
+    def _lag_noise(self, v: GyroVerdict) -> GyroVerdict:
+        """The noise test on every tick (``_LAG_WINDOW``): suspect while an axis reads noisy,
+        the noise named after ``noise_ticks`` such ticks in a row. Ticks the other tests hold,
+        name or resynchronise on, and frozen ones, are not in it (nor is the tick after)."""
+        r = v.residual
+        ok = not (v.hold or v.resync or v.fault is not None or v.taint_previous
+                  or self._repeats > 0 or self._calls <= self.start_ticks)
+        last, self._lag_last = self._lag_last, ((self._calls, r.copy()) if ok else None)
+        if ok and last is not None and last[0] == self._calls - 1:
+            self._lag = (self._lag + [-r * last[1]])[-_LAG_WINDOW:]
+            self._lag_sq = (self._lag_sq + [r * r])[-_LAG_WINDOW:]
+        if len(self._lag) < _LAG_WINDOW:
+            return v
+        lag = np.asarray(self._lag)
+        m = np.mean(np.sort(lag, axis=0)[:-_LAG_TRIM], axis=0)  # the level, robust
+        white = lag.mean(axis=0) >= _LAG_WHITE * np.mean(self._lag_sq, axis=0)
+        noisy = (m > self.lag_noise2) & white
+        if self.fault == NOISE:
+            if (lag.mean(axis=0) > _LAG_AGAIN * self.lag_noise2).any():
+                self._lag_calm = 0
+            else:
+                self._lag_calm += 1
+            noisy = noisy | np.full(3, self._lag_calm < _LAG_WINDOW)
+        self.lag_sigma_rad_s = float(np.sqrt(max(float(m.max()), 0.0)))
+        if not noisy.any():
+            self._lag_over = 0
+            return v
+        self._lag_over += 1
+        fault = v.fault
+        if fault is None and self._lag_over >= self.noise_ticks:
+            fault = self._report(NOISE)
+        self._pending = None
+        return replace(v, suspect=True, hold=False, drop_previous=True, fault=fault,
+                       defer_learning=False)
 
     def _after_fail(self, r: np.ndarray, increments: np.ndarray | None) -> GyroVerdict | None:
         """The tick after a jump only one thruster's failure explained (already evidence):

@@ -82,6 +82,11 @@ _PROBE_TICKS = 2
 # The burn-fraction test names no thruster when a leak of another explains the last ticks'
 # residual this much better (residual sum of squares) than its own deficit.
 _WEAK_LEAK_RSS = 0.8
+# A stuck-on crossing held for confirmation (DetectorCfg.confirm_stuck_on) is confirmed by a
+# next tick above this many times the noise of the last ticks' raw residual along the
+# thruster's direction (a noisy sample is undone by the next one; two in a row along one
+# direction, the second above twice the noise, are a leak).
+_CONFIRM_NOISE = 2.0
 # The leak-fit test names a leak only when it leaves less than this share of what the best
 # other explanation leaves (another thruster's leak, a burning thruster's deficit).
 _LEAK_RIVAL_RSS = 0.7
@@ -197,7 +202,9 @@ class FlightSoftware:
         jump = (dc.gyro_jump_rad_s if dc.gyro_jump_rad_s is not None
                 else JUMP_DZ * dc.dead_zone_rad_s)
         self.gyro_check = GyroCheck(jump, math.sqrt(18.0) * vehicle.gyro.noise_std_rad_s,
-                                    hold_rad_s=dc.gyro_hold_rad_s)
+                                    hold_rad_s=dc.gyro_hold_rad_s,
+                                    lag_noise_rad_s=None if dc.gyro_noise_all_ticks is None
+                                    else dc.gyro_noise_all_ticks * vehicle.gyro.noise_std_rad_s)
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
         self._weak: int | None = None  # the burn-fraction test's thruster this tick
@@ -212,6 +219,10 @@ class FlightSoftware:
         # (detection held back, the pair left out of the allocation, ticks left) while probing
         self._probe: tuple[Detection | None, tuple[int, int], int] | None = None
         self._probed: dict[tuple[int, int], int] = {}
+        # (stuck-on waiting for the next tick, its raw residual along the thruster) and the
+        # crossings the next tick did not confirm (DetectorCfg.confirm_stuck_on)
+        self._confirm: tuple[Detection, float] | None = None
+        self.unconfirmed_stuck_on = 0
         self._w_prev: np.ndarray | None = None
         self.fdir = Fdir(fc.fdir, self.arrays.manifold_of, len(self.arrays.manifolds))
         self.kalman = (DisturbanceKalman(fc.kalman, self.h, self.detector.e_B)
@@ -341,6 +352,7 @@ class FlightSoftware:
                 inc = self.arrays.mu_B_rad_s2 * (self.effectiveness.k * pred.eff_s)[:, None]
             verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s, inc,
                                            self._obs.innovation_B_rad_s)
+            confirmed = self._confirmed(verdict, pred) if self._confirm is not None else None
             latched = self.detector.latched
             if verdict.fault is not None and latched is not None and latched.kind != GYRO_FAULT:
                 # Single fault: a thruster fault is latched and not yet answered, so the rate
@@ -381,6 +393,7 @@ class FlightSoftware:
                 d_now = self._commit(self._tick, dw, pred, avail, self._obs.innovation_B_rad_s,
                                      learn=not verdict.defer_learning, raw=verdict.residual)
                 det = det or d_now
+            det = det or confirmed
         self._w_prev = w_hat.copy()
         if self.detector.cfg.flex_share > 0.0:
             self._u_abs_last = self._u_abs(pred, avail)
@@ -415,6 +428,35 @@ class FlightSoftware:
             resp = self.fdir.handle(det.kind, det)
             if resp.rebaseline:
                 self.rebaseline()
+
+    def _confirmed(self, verdict, pred: Prediction) -> Detection | None:
+        """The crossing held for confirmation (``DetectorCfg.confirm_stuck_on``), judged on
+        this tick's raw residual along the thruster's direction (against it for a thruster that
+        fails or is weak), on a tick the gyro check passes. A stuck-on goes on, and so does a
+        deficit on a tick the thruster is commanded again: at least half of the crossing
+        tick's, and above ``_CONFIRM_NOISE`` times the noise of the last ticks' raw residual
+        along the direction; a deficit is not undone on a tick the thruster is not commanded
+        (nothing back along it). Named now if so; else dropped, and the evidence restarts as
+        after ``NEITHER``."""
+        det, along0 = self._confirm
+        self._confirm = None
+        along = _sense(det) * float(np.asarray(verdict.residual)
+                                    @ self.detector.e_B[det.thruster])
+        # The noise along the direction from the last ticks' raw residual: its first
+        # differences (a leak cancels in them; white noise's residual, itself differenced,
+        # has three times its variance in them).
+        e = self.detector.e_B[det.thruster]
+        a = np.array([w[3] for w in self._window]) @ e if self._window else np.zeros(0)
+        noise = math.sqrt(float(np.mean(np.diff(a) ** 2)) / 3.0) if len(a) > 2 else 0.0
+        if det.kind == STUCK_ON or (pred.eff_s is not None and pred.eff_s[det.thruster] > 0.0):
+            ok = along > _CONFIRM_NOISE * noise and along >= 0.5 * along0
+        else:
+            ok = along >= 0.0
+        if verdict.fault is None and not verdict.suspect and ok:
+            return replace(det, tick=self._tick)
+        self.unconfirmed_stuck_on += 1
+        self._settle(NEITHER, None)
+        return None
 
     def _leak_fit(self) -> Detection | None:
         """Leak-fit test (``DetectorCfg.leak_fit_*``): the stuck-on detection it makes on this
@@ -579,7 +621,14 @@ class FlightSoftware:
                 self._suspect(tick, avail)
             if out.detection is not None:
                 det = self._isolate_opposite(self._isolate_alike(out.detection, avail), avail)
-                return self._settle(det, out.detection)
+                det = self._settle(det, out.detection)
+                if det is not None and det.kind != GYRO_FAULT and det.source in (
+                        "residual", "isolation") and self.detector.cfg.confirm_stuck_on:
+                    # Latched, not answered: the next tick confirms or drops it.
+                    r = np.asarray(dw if raw is None else raw, dtype=float)
+                    self._confirm = (det, _sense(det) * float(r @ self.detector.e_B[det.thruster]))
+                    return None
+                return det
         if out.detection is None and not out.held and pred.eff_s is not None:
             if learn:
                 self._learn(eps, pred, avail)
@@ -853,6 +902,7 @@ class FlightSoftware:
         self._window = []
         self._leak_window = []
         self._probe = None
+        self._confirm = None
         self.gyro_check.forget_pending()
         self.gyro_check.restart_noise()
         # The evidence restarts on the new configuration: effectiveness back to its last
@@ -877,6 +927,12 @@ class FlightSoftware:
         resp = self.fdir.handle("peer_back")
         if resp.rebaseline and getattr(self, "_obs", None) is not None:
             self.rebaseline()
+
+
+def _sense(det: Detection) -> float:
+    """+1 for a stuck-on (the residual goes along the thruster's direction), -1 for a
+    thruster that fails to fire or is weak (against it)."""
+    return 1.0 if det.kind == STUCK_ON else -1.0
 
 
 def _quat(att: AttitudeCfg | np.ndarray | None) -> np.ndarray:
