@@ -363,9 +363,16 @@ class GyroCheck:
         if np.array_equal(y, prev):
             self._repeats += 1
             fault = self._report(FROZEN) if self._repeats >= 2 else None
+            # The jump into the freeze (a held one, or one a thruster's failure explained and
+            # already evidence) was the sensor: the held tick is dropped, the committed one
+            # taints the evidence (an integrating gyro's counter stopping reads as the rate
+            # falling to zero at once; committed, kalman_cube named a thruster after 12 of 20
+            # freezes).
+            dropped, tainted = self._pending is not None, self._last_fail is not None
             self._pending = None
+            self._last_fail = None
             self._r_quiet = None
-            return GyroVerdict(True, False, False, False, fault, r)
+            return GyroVerdict(True, False, dropped, False, fault, r, taint_previous=tainted)
         was_frozen = self._repeats >= 2
         self._repeats = 0
         if was_frozen:

@@ -223,6 +223,7 @@ class FlightSoftware:
         # crossings the next tick did not confirm (DetectorCfg.confirm_stuck_on)
         self._confirm: tuple[Detection, float] | None = None
         self.unconfirmed_stuck_on = 0
+        self._gyro_settle = 0  # ticks left of the settling after a gyro resynchronisation
         self._w_prev: np.ndarray | None = None
         self.fdir = Fdir(fc.fdir, self.arrays.manifold_of, len(self.arrays.manifolds))
         self.kalman = (DisturbanceKalman(fc.kalman, self.h, self.detector.e_B)
@@ -397,12 +398,19 @@ class FlightSoftware:
         self._w_prev = w_hat.copy()
         if self.detector.cfg.flex_share > 0.0:
             self._u_abs_last = self._u_abs(pred, avail)
+        settling = self._gyro_settle > 0
+        if settling:
+            self._gyro_settle -= 1
         if self.kalman is not None and pred is not None:
             burn_dw = self.arrays.mu_B_rad_s2.T @ (self.effectiveness.k * pred.burn_s)
             on_axis = np.abs(self.detector.e_B[pred.burning]).max(axis=0, initial=0.0) > 0.1
             self.kalman.update(self._phi_meas, burn_dw, pred.dangle_thr_B_rad, ~on_axis)
+            if settling and self._gyro_settle == 0:
+                # settled: the filter starts again from the observer's rate, its quiet window
+                # empty
+                self.kalman.reset(self._phi_meas, self._obs.omega_hat_B_rad_s)
             if det is None and self.detector.latched is None and self._probe is None \
-                    and not self._gyro_suspect():
+                    and not settling and not self._gyro_suspect():
                 leak = self.kalman.leak_test(self.fdir.available)
                 if leak is not None:
                     i = leak.thruster
@@ -790,6 +798,16 @@ class FlightSoftware:
         self.model.resync(self._obs.omega_hat_B_rad_s)
         if self.kalman is not None:
             self.kalman.reset(self._phi_meas, self._obs.omega_hat_B_rad_s)
+        # The thruster evidence restarts with the estimators and waits for them to settle, as
+        # after a response (after a freeze the craft may be turning fast: the Kalman filter
+        # restarted on the first live sample took the rest for a disturbance, and kalman_cube
+        # named a thruster after 8 of 20 freezes). An unanswered thruster detection stays
+        # latched (single fault); one waiting for its confirmation was the sensor.
+        if self.detector.latched is None or self._confirm is not None:
+            self._confirm = None
+            self._settle(NEITHER, None)
+            self.detector.rebaseline(hold_ticks=self.detector.cfg.response_hold_ticks)
+            self._gyro_settle = self.detector.cfg.response_hold_ticks
 
     def stage_controller(self) -> None:
         """Seed 004 phase plane (or seed 002 s-law) on the estimated attitude and rigid rate,

@@ -50,7 +50,9 @@ class JsonlWriter:
     """Append-only JSON lines file, one object per tick, each line one ``write(2)``.
 
     A whole line goes to the kernel in a single system call, so a process killed with
-    SIGKILL (the reliability check) leaves whole lines behind, never a torn one. When the
+    SIGKILL (the reliability check) leaves whole lines behind, except that the kernel may stop
+    a write between two pages of the file when the signal comes inside it: the last line can be
+    torn then (seen once in CI, a flight killed at 10 s), and ``read_jsonl`` drops it. When the
     write fails part way (ENOSPC, EIO, EROFS) the file is cut back to its last whole line and
     ``OutputLost`` raised: a full disk leaves no torn line either.
     """

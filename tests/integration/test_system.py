@@ -36,7 +36,17 @@ def _summary(out: Path) -> dict:
 
 
 def _jsonl(path: Path) -> list[dict]:
-    return [json.loads(x) for x in path.read_text().splitlines()]
+    """Every line of a JSON lines file; only the last may be torn (a process killed with
+    SIGKILL inside the write(2) of a line longer than what was left of a page: the kernel
+    stops between pages), and it is dropped as ``hil.recorder.read_jsonl`` drops it."""
+    lines = path.read_text().splitlines()
+    out = []
+    for k, x in enumerate(lines):
+        try:
+            out.append(json.loads(x))
+        except json.JSONDecodeError:
+            assert k == len(lines) - 1, f"{path}: line {k + 1} of {len(lines)} is torn"
+    return out
 
 
 def _rrd_rows(path: Path, entity: str) -> int:
