@@ -7,7 +7,8 @@ in-process run equals the lockstep run over the bus by construction, and a secon
 reuse them.
 
 * gyro sample (``plant.gyro.GyroSample``) -> GYRO: sequence modulo 65536, the rate clipped to
-  the GYRO signal's range (``bus.catalog.GYRO_RATE_LIMIT_RAD_S``), status (0 read as 1, valid);
+  the GYRO signal's range (``bus.catalog.GYRO_RATE_LIMIT_RAD_S``) with the ``SATURATED`` status
+  bit set when it was, status (0 read as 1, valid); ``saturated`` reads that bit;
 * flight output (``flight.software.TickOutput``) -> THR_CMD (on-times in
   ``bus.catalog.ON_QUANTUM_MS`` quanta, manifold bit mask, the gyro sample it came from) and
   FDIR_STATUS (the newest detection, the closed manifolds, the safe flag);
@@ -27,6 +28,7 @@ from bus.catalog import (
     DetectedFault,
     FaultAction,
     FaultKind,
+    GyroStatus,
 )
 from bus.codec import FaultCmd, FdirStatus, Gyro, Message, ThrCmd, decode, encode
 from common.scenario import FaultSpec
@@ -59,9 +61,18 @@ def over_the_wire(msg: Message) -> Message:
 
 def gyro_message(sample) -> Gyro:
     """GYRO of one ``plant.gyro.GyroSample`` (``rate_B_rad_s`` (3,), rad/s, body axes)."""
-    rate = np.clip(np.asarray(sample.rate_B_rad_s, dtype=float),
-                   -GYRO_RATE_LIMIT_RAD_S, GYRO_RATE_LIMIT_RAD_S)
-    return Gyro(sample.seq & 0xFFFF, tuple(float(x) for x in rate), int(sample.status) or 1)
+    raw = np.asarray(sample.rate_B_rad_s, dtype=float)
+    rate = np.clip(raw, -GYRO_RATE_LIMIT_RAD_S, GYRO_RATE_LIMIT_RAD_S)
+    status = int(sample.status) or 1
+    if bool((np.abs(raw) > GYRO_RATE_LIMIT_RAD_S).any()):
+        status |= GyroStatus.SATURATED
+    return Gyro(sample.seq & 0xFFFF, tuple(float(x) for x in rate), status)
+
+
+def saturated(gyro: Gyro | None) -> bool:
+    """The sample was clipped to the GYRO range on some axis (``GyroStatus.SATURATED``): the
+    rate it gives is not the craft's, and neither is the rate change to or from it."""
+    return gyro is not None and bool(gyro.status & GyroStatus.SATURATED)
 
 
 # ----------------------------------------------------------------------------- flight -> plant

@@ -20,7 +20,14 @@ from bus.codec import FaultCmd, FlightTiming, Gyro, ThrCmd
 from bus.protocol import FlightLockstep, HeartbeatSender, TickRequest
 from bus.transport import Port
 from common.units import DEG
-from hil.binding import FAULT_KIND_FROM_BUS, command_quanta, fault_spec, fdir_status, manifold_mask
+from hil.binding import (
+    FAULT_KIND_FROM_BUS,
+    command_quanta,
+    fault_spec,
+    fdir_status,
+    manifold_mask,
+    saturated,
+)
 from hil.config import Scenario
 from hil.node_settings import NodeSettings
 from hil.node_shell import (
@@ -105,6 +112,8 @@ class FlightShell:
         self.last_bus_fault_cmd: FaultCmd | None = None
         self.no_evidence = 0  # ticks kept out of the detector's evidence (docs/hostile-bus.md)
         self.no_evidence_after_skip = 0  # real time: ticks still to keep out after a skip
+        self.gyro_saturated_prev = False  # the last tick's sample was clipped (GYRO range)
+        self.gyro_saturated_ticks = 0
         # Real time: the plant's time of tick 0's sample (the flight's grid starts on the
         # samples it observed first, so its tick n is not the plant's tick n); lockstep: 0.
         self.t0_plant_s = 0.0
@@ -160,6 +169,18 @@ class FlightShell:
             # the model predicted, and the plant held our last command in between.
             self.no_evidence_after_skip -= 1
             applied = False
+        # A sample clipped to the GYRO range, or the first after one: the rate change is not
+        # the craft's (hil.binding.saturated; the in-process lockstep does the same).
+        sat = saturated(self.gyro)
+        if sat != self.gyro_saturated_prev:
+            self.events.append("gyro saturated (GYRO range): no thruster evidence" if sat
+                               else "gyro back inside its range")
+            say("flight", self.events[-1])
+        if sat:
+            self.gyro_saturated_ticks += 1
+        if sat or self.gyro_saturated_prev:
+            applied = False
+        self.gyro_saturated_prev = sat
         if not (fresh and applied):
             self.no_evidence += 1
         stage_ns = {}
@@ -251,6 +272,7 @@ class FlightShell:
             "bus": self.port.counts(),
             "fdir": self.fdir_view,
             "no_evidence_ticks": self.no_evidence,
+            "gyro_saturated_ticks": self.gyro_saturated_ticks,
         }
         if self.fdir_actions:
             rec["fdir_actions"] = self.fdir_actions

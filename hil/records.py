@@ -106,6 +106,8 @@ class FlightRecord(TypedDict):
     # ticks so far the detector took no evidence from (no fresh gyro sample, or the plant
     # did not apply the last command); bus faults of the flight's send path that started
     no_evidence_ticks: NotRequired[int]
+    # ticks so far whose gyro sample was clipped to the GYRO range (hil.binding.saturated)
+    gyro_saturated_ticks: NotRequired[int]
     faults_injected: NotRequired[list[FaultEvent]]
 
 

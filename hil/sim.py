@@ -24,7 +24,7 @@ import numpy as np
 
 from bus.codec import Gyro
 from common.units import DEG
-from hil.binding import gyro_message, over_the_wire, plant_command, thr_cmd
+from hil.binding import gyro_message, over_the_wire, plant_command, saturated, thr_cmd
 from hil.config import Scenario, load_scenario
 from hil.records import detection_record, newly_active_faults, truth_fields
 from hil.summary import summarise
@@ -78,6 +78,7 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
     flight_recs: list[dict[str, Any]] = []
     outputs, truths = [], []
     gyro: Gyro | None = None
+    sat_prev = False
     wall0 = time.perf_counter()
     for n in range(n_ticks):
         t_n = n * h
@@ -86,7 +87,11 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
         if ready:
             gyro = over_the_wire(gyro_message(ready[-1]))
         omega = np.zeros(3) if gyro is None else np.asarray(gyro.omega_B_rad_s)
-        out = fs.step(n, omega)
+        # A clipped sample, or the first after one, is no evidence about the thrusters (the
+        # flight shell does the same from the sample's status).
+        sat = saturated(gyro)
+        out = fs.step(n, omega, evidence=not (sat or sat_prev))
+        sat_prev = sat
         cmd = over_the_wire(thr_cmd(n, out, gyro.sample_seq if gyro else 0))
         on_ms, man = plant_command(cmd, len(out.manifold_open))
         plant.apply_command(n, plant.apply_time(t_n) + phase, on_ms, man)
