@@ -10,7 +10,6 @@ plant 60 ms later than the flight believes it grows on every firing tick.
 
 from __future__ import annotations
 
-import threading
 import uuid
 from pathlib import Path
 
@@ -18,11 +17,9 @@ import numpy as np
 import pytest
 
 from hil.config import SCENARIO_DIR, load_scenario
-from hil.flight_shell import FlightShell, with_actuation_phase
+from hil.flight_shell import with_actuation_phase
 from hil.node_settings import REALTIME_ACTUATION_PHASE_MS, build_parser, parse_settings
-from hil.node_shell import open_port
-from hil.plant_shell import PlantShell
-from hil.recorder import read_jsonl
+from tests.hil.shell_pair import run_lockstep_pair
 
 SCEN = ("name: phase\nvehicle: generic\nduration_s: 12.0\nseed: 0\n"
         "initial: {attitude: {axis: [1.0, 0.0, 0.0], angle_deg: 10.0}}\n")
@@ -36,26 +33,13 @@ def _pair(tmp_path: Path, plant_ms: float, flight_ms: float) -> tuple[list, list
     out = tmp_path / f"run-{plant_ms:g}-{flight_ms:g}"
     out.mkdir()
 
-    def settings(node: str, ms: float):
+    def settings(node: str):
+        ms = flight_ms if node == "flight" else plant_ms
         return parse_settings([node, "--scenario", str(scen), "--out", str(out),
                                "--interface", "virtual", "--channel", channel,
                                "--reply-timeout", "0.5", "--actuation-phase-ms", str(ms)])
 
-    fs = settings("flight", flight_ms)
-    flight = FlightShell(sc, open_port(fs, out, "flight"), out, fs)
-    ps = settings("plant", plant_ms)
-    plant = PlantShell(sc, open_port(ps, out, "plant"), out, ps)
-    done = threading.Event()
-    th = threading.Thread(target=flight.run_lockstep, args=(done.is_set,), daemon=True)
-    th.start()
-    try:
-        plant.run_lockstep(lambda: False)
-    finally:
-        done.set()
-        th.join(10)
-        plant.port.close()
-        flight.port.close()
-    return list(read_jsonl(out / "plant.jsonl")), list(read_jsonl(out / "flight.jsonl"))
+    return run_lockstep_pair(sc, out, settings)
 
 
 def _residual_deg_s(frecs: list) -> float:

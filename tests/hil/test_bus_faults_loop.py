@@ -23,6 +23,7 @@ from hil.plant_shell import PlantShell
 from hil.recorder import read_jsonl
 from hil.secoc_key import new_key_file
 from hil.summary import summarise
+from tests.hil.shell_pair import run_lockstep_pair
 
 BASE = ("name: hostile\nvehicle: generic\nduration_s: {d}\nseed: 0\n"
         "initial: {{attitude: {{axis: [1.0, 0.0, 0.0], angle_deg: 22.5}}}}\n")
@@ -44,23 +45,7 @@ def run_pair(tmp_path: Path, body: str, duration_s: float = 30.0,
                                "lockstep", "--interface", "virtual", "--channel", channel,
                                "--reply-timeout", str(reply_timeout_s), *extra])
 
-    fs = settings("flight")
-    flight = FlightShell(sc, open_port(fs, out, "flight"), out, fs)
-    ps = settings("plant")
-    plant = PlantShell(sc, open_port(ps, out, "plant"), out, ps)
-    done = threading.Event()
-    th = threading.Thread(target=flight.run_lockstep, args=(done.is_set,), daemon=True)
-    th.start()
-    if attacker is not None:
-        threading.Thread(target=attacker, args=(channel, done), daemon=True).start()
-    try:
-        plant.run_lockstep(lambda: False)
-    finally:
-        done.set()
-        th.join(10)
-        plant.port.close()
-        flight.port.close()
-    precs, frecs = list(read_jsonl(out / "plant.jsonl")), list(read_jsonl(out / "flight.jsonl"))
+    precs, frecs = run_lockstep_pair(sc, out, settings, attacker, channel)
     summary = summarise(scenario="hostile", vehicle="generic", mode="lockstep",
                         plant_records=precs, flight_records=frecs, expect=sc.cfg.expect)
     return precs, frecs, summary

@@ -10,22 +10,17 @@ pushed it), and kalman_cube-gyro run 78 named Z+ after a 9 s freeze had let the 
 
 from __future__ import annotations
 
-import threading
 import uuid
-from pathlib import Path
 
 import numpy as np
 
 from bus.catalog import GYRO_RATE_LIMIT_RAD_S, GyroStatus
 from hil.binding import gyro_message, over_the_wire, saturated
 from hil.config import load_scenario
-from hil.flight_shell import FlightShell
 from hil.node_settings import parse_settings
-from hil.node_shell import open_port
-from hil.plant_shell import PlantShell
-from hil.recorder import read_jsonl
 from hil.sim import simulate
 from plant.gyro import GyroSample
+from tests.hil.shell_pair import run_lockstep_pair
 
 FAST = ("name: fast\nvehicle: kalman_cube\nduration_s: {d}\nseed: 0\n"
         "initial: {{rate_B_deg_s: [16.0, 0.0, -14.0]}}\n")
@@ -71,21 +66,7 @@ def test_over_the_bus_the_flight_counts_the_clipped_ticks_and_names_nothing(tmp_
         return parse_settings([node, "--scenario", str(scen), "--out", str(out), "--mode",
                                "lockstep", "--interface", "virtual", "--channel", channel])
 
-    fs = settings("flight")
-    flight = FlightShell(sc, open_port(fs, out, "flight"), out, fs)
-    ps = settings("plant")
-    plant = PlantShell(sc, open_port(ps, out, "plant"), out, ps)
-    done = threading.Event()
-    th = threading.Thread(target=flight.run_lockstep, args=(done.is_set,), daemon=True)
-    th.start()
-    try:
-        plant.run_lockstep(lambda: False)
-    finally:
-        done.set()
-        th.join(10)
-        plant.port.close()
-        flight.port.close()
-    frecs = list(read_jsonl(Path(out) / "flight.jsonl"))
+    _, frecs = run_lockstep_pair(sc, out, settings)
     ticks = [f for f in frecs if "gyro_saturated_ticks" in f]
     assert ticks and 0 < ticks[-1]["gyro_saturated_ticks"] < len(ticks)
     assert ticks[-1]["no_evidence_ticks"] >= ticks[-1]["gyro_saturated_ticks"] + 1
