@@ -290,6 +290,9 @@ class DetectorCfg(_Model):
         if self.weak_below is not None and self.effectiveness_bound <= 0.0:
             raise _FieldError("weak_below", "none when effectiveness_bound is 0 (the test "
                               "reads the learnt effectiveness)", self.weak_below)
+        if self.confirm_stuck_on == "noisy" and self.gyro_noise_all_ticks is None:
+            raise _FieldError("confirm_stuck_on", "true or false without gyro_noise_all_ticks "
+                              "(noisy reads its level)", self.confirm_stuck_on)
         if self.learn_latency_ms > 0.0 and self.effectiveness_bound <= 0.0:
             raise _FieldError("learn_latency_ms", "0 when effectiveness_bound is 0 (the latency "
                               "is learnt with the effectiveness)", self.learn_latency_ms)
@@ -343,7 +346,12 @@ class DetectorCfg(_Model):
     # tick, a noisy sample is undone by the next one (differences of white noise), so the
     # crossing is dropped and the evidence restarts. For a detector that decides on one tick
     # (iss_rs: one tick above the dead zone crosses the threshold); costs one tick of latency.
-    confirm_stuck_on: bool = False
+    # ``noisy``: only a crossing whose thruster direction has been noisy over the ticks before
+    # it (the raw residual's noise along it, from its first differences, above the every-tick
+    # noise level gyro_noise_all_ticks reads in a residual: sqrt(2) times that level) waits;
+    # a crossing out of quiet ticks (a leak's onset) is named at once. Needs
+    # gyro_noise_all_ticks.
+    confirm_stuck_on: bool | Literal["noisy"] = False
     # The gyro's noise test on every tick, not only on quiet ones (flight.gyro_check: the raw
     # residual's lag-one autocovariance reads the sensor's noise through the thrusters' errors):
     # an axis noisier than this many times the gyro's noise_std_rad_s is a noise increase, and

@@ -87,6 +87,9 @@ _WEAK_LEAK_RSS = 0.8
 # thruster's direction (a noisy sample is undone by the next one; two in a row along one
 # direction, the second above twice the noise, are a leak).
 _CONFIRM_NOISE = 2.0
+# confirm_stuck_on: noisy reads the noise along the thruster over this many ticks before the
+# crossing (a large gyro noise increase can build a crossing within a few ticks).
+_NOISY_TICKS = 5
 # The leak-fit test names a leak only when it leaves less than this share of what the best
 # other explanation leaves (another thruster's leak, a burning thruster's deficit).
 _LEAK_RIVAL_RSS = 0.7
@@ -205,6 +208,9 @@ class FlightSoftware:
                                     hold_rad_s=dc.gyro_hold_rad_s,
                                     lag_noise_rad_s=None if dc.gyro_noise_all_ticks is None
                                     else dc.gyro_noise_all_ticks * vehicle.gyro.noise_std_rad_s)
+        self._gyro_noise_std = vehicle.gyro.noise_std_rad_s
+        # (tick, raw residual) of the last ticks the gyro check judged (confirm_stuck_on: noisy)
+        self._raw_recent: list[tuple[int, np.ndarray]] = []
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
         self._weak: int | None = None  # the burn-fraction test's thruster this tick
@@ -353,6 +359,8 @@ class FlightSoftware:
                 inc = self.arrays.mu_B_rad_s2 * (self.effectiveness.k * pred.eff_s)[:, None]
             verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s, inc,
                                            self._obs.innovation_B_rad_s)
+            self._raw_recent.append((self._tick, np.asarray(verdict.residual, dtype=float)))
+            del self._raw_recent[:-_NOISY_TICKS - 1]
             confirmed = self._confirmed(verdict, pred) if self._confirm is not None else None
             latched = self.detector.latched
             if verdict.fault is not None and latched is not None and latched.kind != GYRO_FAULT:
@@ -450,12 +458,7 @@ class FlightSoftware:
         self._confirm = None
         along = _sense(det) * float(np.asarray(verdict.residual)
                                     @ self.detector.e_B[det.thruster])
-        # The noise along the direction from the last ticks' raw residual: its first
-        # differences (a leak cancels in them; white noise's residual, itself differenced,
-        # has three times its variance in them).
-        e = self.detector.e_B[det.thruster]
-        a = np.array([w[3] for w in self._window]) @ e if self._window else np.zeros(0)
-        noise = math.sqrt(float(np.mean(np.diff(a) ** 2)) / 3.0) if len(a) > 2 else 0.0
+        noise = self._noise_along(self.detector.e_B[det.thruster])
         if det.kind == STUCK_ON or (pred.eff_s is not None and pred.eff_s[det.thruster] > 0.0):
             ok = along > _CONFIRM_NOISE * noise and along >= 0.5 * along0
         else:
@@ -465,6 +468,31 @@ class FlightSoftware:
         self.unconfirmed_stuck_on += 1
         self._settle(NEITHER, None)
         return None
+
+    def _noise_along(self, e: np.ndarray) -> float:
+        """The noise of the last ticks' raw residual along direction ``e``, from its first
+        differences (a leak cancels in them; white noise's residual, itself differenced, has
+        three times its variance in them)."""
+        a = np.array([w[3] for w in self._window]) @ e if self._window else np.zeros(0)
+        return math.sqrt(float(np.mean(np.diff(a) ** 2)) / 3.0) if len(a) > 2 else 0.0
+
+    def _held_for_confirmation(self, det: Detection) -> bool:
+        """Whether the crossing ``det`` waits for the next tick (``DetectorCfg.confirm_stuck_on``):
+        always, or with ``noisy`` when the ticks before it were noisy along the thruster: the
+        lag-one autocovariance ``-mean(a(k) a(k-1))`` of the raw residual along it, over the
+        last ``_NOISY_TICKS`` ticks before the crossing's (every tick the gyro check judged,
+        held ones included), above the square of the every-tick noise
+        level (white gyro noise of sigma gives sigma^2, flight.gyro_check; a leak's onset steps
+        one way and stays there, which gives products of the other sign)."""
+        dc = self.detector.cfg
+        if dc.confirm_stuck_on != "noisy":
+            return bool(dc.confirm_stuck_on)
+        win = [r for k, r in self._raw_recent if k < det.tick][-_NOISY_TICKS:]
+        if len(win) < 2:
+            return False
+        a = np.array(win) @ self.detector.e_B[det.thruster]
+        level = dc.gyro_noise_all_ticks * self._gyro_noise_std
+        return float(np.mean(-a[1:] * a[:-1])) > level * level
 
     def _leak_fit(self) -> Detection | None:
         """Leak-fit test (``DetectorCfg.leak_fit_*``): the stuck-on detection it makes on this
@@ -631,7 +659,7 @@ class FlightSoftware:
                 det = self._isolate_opposite(self._isolate_alike(out.detection, avail), avail)
                 det = self._settle(det, out.detection)
                 if det is not None and det.kind != GYRO_FAULT and det.source in (
-                        "residual", "isolation") and self.detector.cfg.confirm_stuck_on:
+                        "residual", "isolation") and self._held_for_confirmation(det):
                     # Latched, not answered: the next tick confirms or drops it.
                     r = np.asarray(dw if raw is None else raw, dtype=float)
                     self._confirm = (det, _sense(det) * float(r @ self.detector.e_B[det.thruster]))
