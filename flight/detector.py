@@ -242,24 +242,40 @@ class Effectiveness:
     def fraction(self) -> np.ndarray:
         """(N,) thrust over nominal each thruster showed on its last ``_FRACTION_TICKS``
         ticks with a burn worth twice the residual noise (else ``theta``), every other
-        thruster taken as predicted: ``k_j + (mu_j eff_j) . r / |mu_j eff_j|^2``, in
-        [0, 1.5]. It answers "what is left of this thruster's thrust" once the commanded
-        evidence named it, which the joint estimate cannot yet tell from an opposite thruster
-        leaking so soon after the fault."""
+        thruster taken as predicted: ``k_j + (mu_j eff_j) . r / |mu_j eff_j|^2``, their
+        median (one burn may straddle the fault: a thruster that failed to fire 81 % into a
+        burn and then gave 11 % and -15 % read 25 % on the mean, named degraded; kalman_cube-
+        faults run 31), in [0, 1.5]. It answers "what is left of this thruster's thrust"
+        once the commanded evidence named it, which the joint estimate cannot yet tell from an
+        opposite thruster leaking so soon after the fault."""
+        return self._fraction(lambda burns: float(np.median(burns)))
+
+    @property
+    def fraction_healthiest(self) -> np.ndarray:
+        """(N,) the larger of the mean and the median of the same burns as ``fraction``: what
+        the "within the admitted errors, not a fault" checks read, so that one burn, low or
+        high, never turns a thruster the mean would pass into a fault."""
+        return self._fraction(lambda burns: float(max(np.mean(burns), np.median(burns))))
+
+    def _fraction(self, summary) -> np.ndarray:
         out = self.theta.copy()
         for j, hist in enumerate(self._recent):
             if hist:
-                out[j] = float(np.mean([f for _, f in hist[-_FRACTION_TICKS:]]))
+                out[j] = summary([f for _, f in hist[-_FRACTION_TICKS:]])
         return np.clip(out, 0.0, 1.5)
 
-    def fraction_since(self, j: int, stamp: int) -> float:
-        """``fraction[j]`` from the burns of updates ``stamp`` and later only (a detection's
-        evidence window: the burns before the fault say nothing of what is left); ``theta``
-        when there was none. With a 30 ms actuation phase a burn spills past the next sample,
-        and the last three burns of a thruster that failed to fire still held one from before
-        the fault (105 %): it read 27 % and was named degraded."""
+    def fraction_since(self, j: int, stamp: int, healthiest: bool = False) -> float:
+        """``fraction[j]`` (``fraction_healthiest[j]`` with ``healthiest``) from the burns of
+        updates ``stamp`` and later only (a detection's evidence window: the burns before the
+        fault say nothing of what is left); ``theta`` when there was none. With a 30 ms
+        actuation phase a burn spills past the next sample, and the last three burns of a
+        thruster that failed to fire still held one from before the fault (105 %): it read
+        27 % on their mean and was named degraded."""
         since = [f for t, f in self._recent[j] if t >= stamp][-_FRACTION_TICKS:]
-        return float(np.clip(np.mean(since) if since else self.theta[j], 0.0, 1.5))
+        if not since:
+            return float(np.clip(self.theta[j], 0.0, 1.5))
+        value = np.median(since) if not healthiest else max(np.mean(since), np.median(since))
+        return float(np.clip(value, 0.0, 1.5))
 
     def update(self, residual_B_rad_s: np.ndarray, eff_s: np.ndarray, use: np.ndarray,
                deff_dlat: np.ndarray | None = None) -> None:
@@ -529,7 +545,7 @@ class Detector:
         i = int(i)
         eff = self.effectiveness
         if kind == FAIL_TO_FIRE and eff is not None and eff.bound > 0.0 \
-                and eff.fraction[i] >= 1.0 - eff.bound:
+                and eff.fraction_healthiest[i] >= 1.0 - eff.bound:
             # The thruster gives what the admitted thrust errors allow: the commanded evidence
             # ran ahead of the learning (a first firing), not a fault.
             return None

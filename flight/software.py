@@ -779,7 +779,8 @@ class FlightSoftware:
             if det.kind == STUCK_ON and ratio > need:
                 frac = self.effectiveness.fraction_since(i, win[0][4])
                 eff_bound = self.effectiveness.bound
-                if eff_bound > 0.0 and frac >= 1.0 - eff_bound:
+                if eff_bound > 0.0 and self.effectiveness.fraction_since(
+                        i, win[0][4], healthiest=True) >= 1.0 - eff_bound:
                     # The deficit of i fits better, but i's own burns show its thrust within
                     # the admitted errors: neither hypothesis holds (the detector's own rule
                     # for a fails-to-fire crossing). Seen in real time on kalman_cube: a

@@ -103,17 +103,24 @@ def _campaign_run(tmp_path, campaign: str, run: int, detector: dict | None = Non
 
 
 def test_a_large_noise_increase_is_named_as_the_gyro(tmp_path) -> None:
-    """generic-gyro run 47: pitch noise 1.9e-4 rad/s (9.3 x SPEC) at 27.0 s. Named a gyro
-    fault, and no thruster after; without the confirmation the same run names Y- stuck on at
-    28.2 s (the oracle: the test can fail)."""
-    spec, r = _campaign_run(tmp_path, "generic-gyro", 47)
+    """generic-gyro run 47: pitch noise 1.9e-4 rad/s (9.3 x SPEC) at 27.0 s, with generic's
+    spherical dead zone of before its ellipsoid (``relative_dead_zone_across: null``, where
+    the noise builds a crossing within six ticks). Named a gyro fault, and no thruster after;
+    without the confirmation the same run names Y- stuck on at 28.2 s (the oracle: the test
+    can fail). With the shipped vehicle: the gyro, no thruster."""
+    sphere = {"relative_dead_zone_across": "null"}
+    spec, r = _campaign_run(tmp_path, "generic-gyro", 47, sphere)
     assert spec.fault["kind"] == "gyro_noise"
     dets = r.summary["detections"]
     assert dets and all(d["type"] == "gyro_fault" for d in dets), dets
     assert dets[0]["t_s"] > spec.fault["t_s"]
-    _, r0 = _campaign_run(tmp_path / "off", "generic-gyro", 47, {"confirm_stuck_on": "false"})
+    _, r0 = _campaign_run(tmp_path / "off", "generic-gyro", 47,
+                          {**sphere, "confirm_stuck_on": "false"})
     first = r0.summary["detections"][0]
     assert (first["type"], first["thruster"]) == ("stuck_on", "Y-"), first
+    _, r1 = _campaign_run(tmp_path / "shipped", "generic-gyro", 47)
+    dets = r1.summary["detections"]
+    assert dets and all(d["type"] == "gyro_fault" for d in dets), dets
 
 
 @pytest.mark.parametrize("run", [0, 9])

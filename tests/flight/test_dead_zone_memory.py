@@ -75,6 +75,7 @@ def test_memory_without_a_relative_dead_zone_is_refused() -> None:
     with pytest.raises(ConfigError, match=r"relative_dead_zone_memory: expected 0 when "
                                           r"relative_dead_zone is 0.*got 0\.5"):
         load_vehicle("generic", {"detector": {"relative_dead_zone": 0.0,
+                                              "relative_dead_zone_across": None,
                                               "relative_dead_zone_memory": 0.5}})
 
 

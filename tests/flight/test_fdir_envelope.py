@@ -113,9 +113,10 @@ def test_effectiveness_stays_bounded_and_reads_the_fraction_of_a_degraded_thrust
 @pytest.mark.parametrize("after", [0.0, 0.5])
 def test_the_fraction_since_a_fault_reads_only_burns_after_it(after: float) -> None:
     """Z+ burns at its full thrust for 40 ticks, then at ``after`` for two: from the update
-    the fault started on, the fraction reads ``after``; the last three burns alone still mix
-    in one from before (with a 30 ms actuation phase that made a fails-to-fire read 27 % and
-    be named degraded). Oracle: the thrust the data are built from."""
+    the fault started on, the fraction reads ``after``; the last three burns alone still hold
+    one from before, which their median leaves out (their mean, ``(1 + 2 after) / 3``, made a
+    fails-to-fire read 27 % with a 30 ms actuation phase and be named degraded). Oracle: the
+    thrust the data are built from."""
     eff = Effectiveness(MU, bound=0.2, r_var=1e-4**2, tick_s=H)
     e = np.array([0, 0, 0, 0, 0.16, 0])
     for _ in range(40):
@@ -124,7 +125,7 @@ def test_the_fraction_since_a_fault_reads_only_burns_after_it(after: float) -> N
     for _ in range(2):
         eff.update(MU.T @ ((after - eff.k) * e), e, np.ones(6, bool))
     assert eff.fraction_since(4, start) == pytest.approx(after, abs=0.02)
-    assert eff.fraction[4] == pytest.approx((1.0 + 2 * after) / 3, abs=0.02)
+    assert eff.fraction[4] == pytest.approx(after, abs=0.02)
     # no burn since: the joint estimate
     assert eff.fraction_since(4, eff.updates) == pytest.approx(float(eff.theta[4]))
 
