@@ -16,6 +16,7 @@ import pytest
 from flight.detector import STUCK_ON, Detection
 from flight.software import _NOISY_TICKS, FlightSoftware
 from hil.config import load_vehicle
+from tests.flight.campaign_run import campaign_run
 
 SPEC = 2e-5  # generic's gyro noise_std_rad_s
 LEVEL = 2.5 * SPEC  # generic's gyro_noise_all_ticks x SPEC
@@ -86,22 +87,6 @@ def test_noisy_needs_the_every_tick_level() -> None:
         load_vehicle("generic", {"detector": {"confirm_stuck_on": "sometimes"}})
 
 
-def _campaign_run(tmp_path, campaign: str, run: int, detector: dict | None = None):
-    from hil.campaign.expansion import expand_run, write_run
-    from hil.campaign.load import load_campaign
-    from hil.config import CONFIG_DIR
-    from hil.sim import simulate
-
-    spec = expand_run(load_campaign(CONFIG_DIR / "campaigns" / f"{campaign}.yaml"), run)
-    path = write_run(spec, tmp_path)
-    if detector:
-        text = path.read_text()
-        assert "\nflight:" not in text
-        path.write_text(text + "flight:\n  detector:\n" + "".join(
-            f"    {k}: {v}\n" for k, v in detector.items()))
-    return spec, simulate(path)
-
-
 def test_a_large_noise_increase_is_named_as_the_gyro(tmp_path) -> None:
     """generic-gyro run 47: pitch noise 1.9e-4 rad/s (9.3 x SPEC) at 27.0 s, with generic's
     spherical dead zone of before its ellipsoid (``relative_dead_zone_across: null``, where
@@ -109,16 +94,16 @@ def test_a_large_noise_increase_is_named_as_the_gyro(tmp_path) -> None:
     without the confirmation the same run names Y- stuck on at 28.2 s (the oracle: the test
     can fail). With the shipped vehicle: the gyro, no thruster."""
     sphere = {"relative_dead_zone_across": "null"}
-    spec, r = _campaign_run(tmp_path, "generic-gyro", 47, sphere)
+    spec, r = campaign_run(tmp_path, "generic-gyro", 47, sphere)
     assert spec.fault["kind"] == "gyro_noise"
     dets = r.summary["detections"]
     assert dets and all(d["type"] == "gyro_fault" for d in dets), dets
     assert dets[0]["t_s"] > spec.fault["t_s"]
-    _, r0 = _campaign_run(tmp_path / "off", "generic-gyro", 47,
+    _, r0 = campaign_run(tmp_path / "off", "generic-gyro", 47,
                           {**sphere, "confirm_stuck_on": "false"})
     first = r0.summary["detections"][0]
     assert (first["type"], first["thruster"]) == ("stuck_on", "Y-"), first
-    _, r1 = _campaign_run(tmp_path / "shipped", "generic-gyro", 47)
+    _, r1 = campaign_run(tmp_path / "shipped", "generic-gyro", 47)
     dets = r1.summary["detections"]
     assert dets and all(d["type"] == "gyro_fault" for d in dets), dets
 
@@ -127,9 +112,9 @@ def test_a_large_noise_increase_is_named_as_the_gyro(tmp_path) -> None:
 def test_a_stuck_thruster_costs_no_tick(tmp_path, run: int) -> None:
     """generic-faults runs 0 and 9 (X+ and Y- stuck on 100 %): named right at the same time as
     without the confirmation, one tick before the unconditional confirmation."""
-    _, r = _campaign_run(tmp_path, "generic-faults", run)
-    _, r0 = _campaign_run(tmp_path / "off", "generic-faults", run, {"confirm_stuck_on": "false"})
-    _, r1 = _campaign_run(tmp_path / "on", "generic-faults", run, {"confirm_stuck_on": "true"})
+    _, r = campaign_run(tmp_path, "generic-faults", run)
+    _, r0 = campaign_run(tmp_path / "off", "generic-faults", run, {"confirm_stuck_on": "false"})
+    _, r1 = campaign_run(tmp_path / "on", "generic-faults", run, {"confirm_stuck_on": "true"})
     d, d0, d1 = (x.summary["detections"][0] for x in (r, r0, r1))
     assert d["correct"] and d["type"] == "stuck_on", d
     assert d["t_s"] == d0["t_s"] and d1["t_s"] == pytest.approx(d["t_s"] + 0.2), (d, d0, d1)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from flight.detector import _FRACTION_TICKS, Effectiveness
+from tests.flight.campaign_run import campaign_run
 
 MU = np.array([[0.005, 0, 0], [-0.005, 0, 0], [0, 0.0075, 0], [0, -0.0075, 0],
                [0, 0, 0.01], [0, 0, -0.01]])
@@ -46,22 +47,12 @@ def test_no_burn_reads_theta() -> None:
     assert eff.fraction_since(4, 0) == pytest.approx(eff.theta[4])
 
 
-def _campaign_run(tmp_path, campaign: str, run: int):
-    from hil.campaign.expansion import expand_run, write_run
-    from hil.campaign.load import load_campaign
-    from hil.config import CONFIG_DIR
-    from hil.sim import simulate
-
-    spec = expand_run(load_campaign(CONFIG_DIR / "campaigns" / f"{campaign}.yaml"), run)
-    return spec, simulate(write_run(spec, tmp_path))
-
-
 @pytest.mark.parametrize("run", [31, 61])
 def test_a_thruster_that_fails_to_fire_is_named_so(tmp_path, run: int) -> None:
     """kalman_cube-faults runs 31 (Z+) and 61 (Y+) fail to fire: named fail_to_fire, the right
     thruster, fraction under 0.15 (the mean of the same burns named them degraded at 0.25 and
     0.19)."""
-    spec, r = _campaign_run(tmp_path, "kalman_cube-faults", run)
+    spec, r = campaign_run(tmp_path, "kalman_cube-faults", run)
     assert spec.fault["kind"] == "fail_to_fire"
     d = r.summary["detections"][0]
     assert d["correct"] and d["type"] == "fail_to_fire" and d["fraction"] < FAIL_FRACTION, d

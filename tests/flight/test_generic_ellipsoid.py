@@ -14,6 +14,7 @@ import pytest
 
 from flight.software import FlightSoftware
 from hil.config import load_vehicle
+from tests.flight.campaign_run import campaign_run
 
 
 def _fs(across) -> FlightSoftware:
@@ -48,17 +49,8 @@ def test_a_deficit_behind_other_axes_firings() -> None:
 
 
 def _campaign_run(tmp_path, run: int, across=None):
-    from hil.campaign.expansion import expand_run, write_run
-    from hil.campaign.load import load_campaign
-    from hil.config import CONFIG_DIR
-    from hil.sim import simulate
-
-    spec = expand_run(load_campaign(CONFIG_DIR / "campaigns" / "generic-faults.yaml"), run)
-    path = write_run(spec, tmp_path)
-    if across is not None:
-        path.write_text(path.read_text() + "flight:\n  detector:\n"
-                        f"    relative_dead_zone_across: {across}\n")
-    return spec, simulate(path)
+    return campaign_run(tmp_path, "generic-faults", run,
+                        None if across is None else {"relative_dead_zone_across": across})
 
 
 @pytest.mark.parametrize("run", [17, 44])

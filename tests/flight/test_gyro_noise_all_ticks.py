@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from flight.gyro_check import _LAG_WINDOW, NOISE, GyroCheck
+from tests.flight.campaign_run import campaign_run
 
 SPEC = 2e-7  # iss_rs's gyro noise_std_rad_s
 LEVEL = 2.5 * SPEC
@@ -113,33 +114,17 @@ def test_off_by_default() -> None:
     assert not any(x.fault for x in v)
 
 
-def _campaign_run(tmp_path, campaign: str, run: int, detector: dict | None = None):
-    from hil.campaign.expansion import expand_run, write_run
-    from hil.campaign.load import load_campaign
-    from hil.config import CONFIG_DIR
-    from hil.sim import simulate
-
-    spec = expand_run(load_campaign(CONFIG_DIR / "campaigns" / f"{campaign}.yaml"), run)
-    path = write_run(spec, tmp_path)
-    if detector:
-        text = path.read_text()
-        assert "\nflight:" not in text
-        path.write_text(text + "flight:\n  detector:\n" + "".join(
-            f"    {k}: {v}\n" for k, v in detector.items()))
-    return spec, simulate(path)
-
-
 def test_a_noisy_gyro_under_thrust_is_named_as_the_gyro(tmp_path) -> None:
     """iss_rs-gyro run 59: noise on roll up to 1.9e-6 rad/s (9.6 x SPEC) at 27.8 s, thrust on
     every tick. Named a gyro fault, and no thruster after; without the two mechanisms the
     same run names P2-roll_II stuck on at 29.0 s, then two more thrusters (the oracle: the
     test can fail)."""
-    spec, r = _campaign_run(tmp_path, "iss_rs-gyro", 59)
+    spec, r = campaign_run(tmp_path, "iss_rs-gyro", 59)
     assert spec.fault["kind"] == "gyro_noise"
     dets = r.summary["detections"]
     assert dets and dets[0]["type"] == "gyro_fault" and dets[0]["t_s"] > spec.fault["t_s"], dets
     assert all(d["type"] == "gyro_fault" for d in dets), dets
-    _, r0 = _campaign_run(tmp_path / "off", "iss_rs-gyro", 59,
+    _, r0 = campaign_run(tmp_path / "off", "iss_rs-gyro", 59,
                           {"confirm_stuck_on": "false", "gyro_noise_all_ticks": "null"})
     first = r0.summary["detections"][0]
     assert (first["type"], first["thruster"]) == ("stuck_on", "P2-roll_II"), first
@@ -148,8 +133,8 @@ def test_a_noisy_gyro_under_thrust_is_named_as_the_gyro(tmp_path) -> None:
 def test_a_stuck_thruster_is_confirmed_on_the_next_tick(tmp_path) -> None:
     """iss_rs-faults run 24 (SM+yaw_II stuck on, fought by steady firing): still found first
     and right, within one tick more than without the confirmation."""
-    spec, r = _campaign_run(tmp_path, "iss_rs-faults", 24)
-    _, r0 = _campaign_run(tmp_path / "off", "iss_rs-faults", 24, {"confirm_stuck_on": "false"})
+    spec, r = campaign_run(tmp_path, "iss_rs-faults", 24)
+    _, r0 = campaign_run(tmp_path / "off", "iss_rs-faults", 24, {"confirm_stuck_on": "false"})
     first, first0 = r.summary["detections"][0], r0.summary["detections"][0]
     assert first["correct"] and first["type"] == "stuck_on", first
     assert first0["correct"]
