@@ -347,10 +347,9 @@ class DetectorCfg(_Model):
     # crossing is dropped and the evidence restarts. For a detector that decides on one tick
     # (iss_rs: one tick above the dead zone crosses the threshold); costs one tick of latency.
     # ``noisy``: only a crossing whose thruster direction has been noisy over the ticks before
-    # it (the raw residual's noise along it, from its first differences, above the every-tick
-    # noise level gyro_noise_all_ticks reads in a residual: sqrt(2) times that level) waits;
-    # a crossing out of quiet ticks (a leak's onset) is named at once. Needs
-    # gyro_noise_all_ticks.
+    # it waits (the raw residual's lag-one autocovariance along it above the square of the
+    # every-tick noise level, gyro_noise_all_ticks x the gyro's noise_std_rad_s); a crossing
+    # out of quiet ticks (a leak's onset) is named at once. Needs gyro_noise_all_ticks.
     confirm_stuck_on: bool | Literal["noisy"] = False
     # The gyro's noise test on every tick, not only on quiet ones (flight.gyro_check: the raw
     # residual's lag-one autocovariance reads the sensor's noise through the thrusters' errors):

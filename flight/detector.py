@@ -248,21 +248,17 @@ class Effectiveness:
         faults run 31), in [0, 1.5]. It answers "what is left of this thruster's thrust"
         once the commanded evidence named it, which the joint estimate cannot yet tell from an
         opposite thruster leaking so soon after the fault."""
-        return self._fraction(lambda burns: float(np.median(burns)))
+        return self._fraction(healthiest=False)
 
     @property
     def fraction_healthiest(self) -> np.ndarray:
         """(N,) the larger of the mean and the median of the same burns as ``fraction``: what
         the "within the admitted errors, not a fault" checks read, so that one burn, low or
         high, never turns a thruster the mean would pass into a fault."""
-        return self._fraction(lambda burns: float(max(np.mean(burns), np.median(burns))))
+        return self._fraction(healthiest=True)
 
-    def _fraction(self, summary) -> np.ndarray:
-        out = self.theta.copy()
-        for j, hist in enumerate(self._recent):
-            if hist:
-                out[j] = summary([f for _, f in hist[-_FRACTION_TICKS:]])
-        return np.clip(out, 0.0, 1.5)
+    def _fraction(self, healthiest: bool) -> np.ndarray:
+        return np.array([self.fraction_since(j, -1, healthiest) for j in range(self.n)])
 
     def fraction_since(self, j: int, stamp: int, healthiest: bool = False) -> float:
         """``fraction[j]`` (``fraction_healthiest[j]`` with ``healthiest``) from the burns of
@@ -273,8 +269,11 @@ class Effectiveness:
         27 % on their mean and was named degraded."""
         since = [f for t, f in self._recent[j] if t >= stamp][-_FRACTION_TICKS:]
         if not since:
-            return float(np.clip(self.theta[j], 0.0, 1.5))
-        value = np.median(since) if not healthiest else max(np.mean(since), np.median(since))
+            value = self.theta[j]
+        elif healthiest:
+            value = max(np.mean(since), np.median(since))
+        else:
+            value = np.median(since)
         return float(np.clip(value, 0.0, 1.5))
 
     def update(self, residual_B_rad_s: np.ndarray, eff_s: np.ndarray, use: np.ndarray,

@@ -208,8 +208,10 @@ class FlightSoftware:
                                     hold_rad_s=dc.gyro_hold_rad_s,
                                     lag_noise_rad_s=None if dc.gyro_noise_all_ticks is None
                                     else dc.gyro_noise_all_ticks * vehicle.gyro.noise_std_rad_s)
-        self._gyro_noise_std = vehicle.gyro.noise_std_rad_s
-        # (tick, raw residual) of the last ticks the gyro check judged (confirm_stuck_on: noisy)
+        # confirm_stuck_on: noisy: the square of the every-tick noise level, and (tick, raw
+        # residual) of the last ticks the gyro check judged (kept only then)
+        self._noisy_level2 = None if dc.confirm_stuck_on != "noisy" else (
+            dc.gyro_noise_all_ticks * vehicle.gyro.noise_std_rad_s) ** 2
         self._raw_recent: list[tuple[int, np.ndarray]] = []
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
@@ -359,8 +361,9 @@ class FlightSoftware:
                 inc = self.arrays.mu_B_rad_s2 * (self.effectiveness.k * pred.eff_s)[:, None]
             verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s, inc,
                                            self._obs.innovation_B_rad_s)
-            self._raw_recent.append((self._tick, np.asarray(verdict.residual, dtype=float)))
-            del self._raw_recent[:-_NOISY_TICKS - 1]
+            if self._noisy_level2 is not None:
+                self._raw_recent.append((self._tick, np.asarray(verdict.residual, dtype=float)))
+                del self._raw_recent[:-_NOISY_TICKS - 1]
             confirmed = self._confirmed(verdict, pred) if self._confirm is not None else None
             latched = self.detector.latched
             if verdict.fault is not None and latched is not None and latched.kind != GYRO_FAULT:
@@ -484,15 +487,13 @@ class FlightSoftware:
         held ones included), above the square of the every-tick noise
         level (white gyro noise of sigma gives sigma^2, flight.gyro_check; a leak's onset steps
         one way and stays there, which gives products of the other sign)."""
-        dc = self.detector.cfg
-        if dc.confirm_stuck_on != "noisy":
-            return bool(dc.confirm_stuck_on)
+        if self._noisy_level2 is None:
+            return bool(self.detector.cfg.confirm_stuck_on)
         win = [r for k, r in self._raw_recent if k < det.tick][-_NOISY_TICKS:]
         if len(win) < 2:
             return False
         a = np.array(win) @ self.detector.e_B[det.thruster]
-        level = dc.gyro_noise_all_ticks * self._gyro_noise_std
-        return float(np.mean(-a[1:] * a[:-1])) > level * level
+        return float(np.mean(-a[1:] * a[:-1])) > self._noisy_level2
 
     def _leak_fit(self) -> Detection | None:
         """Leak-fit test (``DetectorCfg.leak_fit_*``): the stuck-on detection it makes on this
