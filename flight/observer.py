@@ -14,20 +14,25 @@ Quiet ticks (no thruster acts on the channel in this or the previous tick), eq. 
     w^-   = w^(n) + d_free(n)                 (rigid terms of the onboard model, no thrust)
     g^-   = A^ g^(n) - B g^(n-1) - W3 eps(n)
     w^    = w^- + W1 eps(n+1);   g^ = g^- + W2 eps(n+1)
-    A^   += W4 g^(n) eps(n+1) / P_g           (frequency function identified)
+    A^   += W4 g^(n) eps(n+1) / (g^(n)^2 + P_g)  (frequency function identified)
 
 Switching ticks (a thruster acts now or acted in the previous tick), eq. 8::
 
     w^-   = w^(n) + d_free(n) + u(n)
     g^-   = A^ g^(n) - B g^(n-1) + mu^ v(n) - W7 eps(n),   v(n) = u(n) - A^/2 u(n-1)
     w^    = w^- + W5 eps(n+1);   g^ = g^- + W6 eps(n+1)
-    mu^  += W8 v(n) eps(n+1) / P_v            (influence coefficient identified)
+    mu^  += W8 v(n) eps(n+1) / (v(n)^2 + P_v)  (influence coefficient identified)
 
 Deviation from the seed, and why: the seed writes the parameter steps as
 ``W4 sign(g^) eps`` and ``W8 sign(v) eps``, which gives W4 and W8 the units of 1/(rad/s) and makes
 their good values depend on the tone's amplitude. We use the normalised gradient step (NLMS):
-the same descent direction on ``eps^2``, divided by ``P_g`` and ``P_v``, running mean squares of
-the regressors, so W4 and W8 are dimensionless fractions of a full step. ``A^`` is kept in the
+the same descent direction on ``eps^2``, divided by ``g^2 + P_g`` and ``v^2 + P_v`` (this tick's
+regressor squared plus its running mean square), so W4 and W8 are dimensionless fractions of a
+full step and a step never moves the prediction by more than that fraction of its error
+(``|g dA| <= W4 |eps|``). Dividing by the running mean alone, which holds 5 % of ``g^2`` on the
+first quiet ticks after a burst, let one tick move it by 20 W4 of the error: on orel the roll
+channel's frequency fell from 0.3 Hz to the band's floor in two ticks after a slew
+(orel-envelope runs 29 and 254; tests/flight/test_observer_freq_step.py). ``A^`` is kept in the
 band of frequencies ``freq_bounds_hz`` (default: the config's ``freq_band`` times f0, [f0/4,
 min(4 f0, 0.4/h)] unless the vehicle narrows it) so that an unmodelled input (a failed
 thruster) cannot drive it to a non-physical value. ``B`` is fixed from the
@@ -219,7 +224,7 @@ class AdaptiveObserver:
         # Parameter steps use the regressors of this prediction (g(n), v(n)), seed 003 eqs. 7-8.
         self.P_g = _P_FORGET * self.P_g + (1.0 - _P_FORGET) * self.g**2
         self.P_v = _P_FORGET * self.P_v + (1.0 - _P_FORGET) * v**2
-        dA = W4 * self.g * eps / (self.P_g + self._floor2)
+        dA = W4 * self.g * eps / (self.g**2 + self.P_g + self._floor2)
         dmu = W8 * v * eps / (v**2 + self.P_v + self._floor2)
         self.A = np.where(switching, self.A, np.clip(self.A + dA, self._A_min, self._A_max))
         # mu^ is identified at switching instants only (a thruster turned on or off: the input
