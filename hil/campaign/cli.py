@@ -74,9 +74,11 @@ def _print_summary(doc: dict[str, Any]) -> None:
                 print(f"  {veh} all faults: missed {_fmt_rate(st['missed_detection'])}, "
                       f"latency p50/p90/max {_fmt_lat(st['latency_s'])}")
             else:
+                wrong = st.get("wrong_first", 0)
                 print(f"  {veh} {cls}: missed {_fmt_rate(st['missed_detection'])}, "
                       f"unobservable {st['unobservable']}, latency p50/p90/max "
-                      f"{_fmt_lat(st['latency_s'])}")
+                      f"{_fmt_lat(st['latency_s'])}"
+                      + (f", {wrong} detected after a wrong one named first" if wrong else ""))
                 if "fraction_error" in st:
                     fe = st["fraction_error"]
                     print(f"    thrust fraction within {fe['tolerance']}: "

@@ -160,19 +160,21 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
         fcls = [k for k in vs if k not in ("none", "all_faults")]
         if fcls:
             L += ["| fault class | runs | unobservable | observable | missed-detection rate "
-                  "[95 % CI] | detected exact / group | misidentified | latency s p50 / p90 / "
-                  "max | runs with a false alarm before the fault |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "[95 % CI] | detected exact / group | of those, a wrong one named first | "
+                  "misidentified | latency s p50 / p90 / max | runs with a false alarm before "
+                  "the fault |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
             for k in fcls + (["all_faults"] if "all_faults" in vs else []):
                 st = vs[k]
                 if k == "all_faults":
                     L.append(f"| **all** | {st['runs']} | | {st['observable']} | "
-                             f"{_fmt_rate(st['missed_detection'])} | | | "
+                             f"{_fmt_rate(st['missed_detection'])} | | | | "
                              f"{_fmt_lat(st['latency_s'])} | |")
                     continue
                 L.append(f"| {k} | {st['runs']} | {st['unobservable']} | {st['observable']} | "
                          f"{_fmt_rate(st['missed_detection'])} | {st['detected_exact']} / "
-                         f"{st['detected_group']} | {st['misidentified']} | "
+                         f"{st['detected_group']} | {st.get('wrong_first', 0)} | "
+                         f"{st['misidentified']} | "
                          f"{_fmt_lat(st['latency_s'])} | "
                          f"{_fmt_rate(st['false_alarm_before_fault'])} |")
             L.append("")

@@ -13,6 +13,8 @@ correct or not by the summary itself, so new detection types need nothing here.
   ``misidentified`` (detections after the fault, none correct), ``missed`` (no detection after
   the fault), ``unjudged`` (the summary does not judge this fault: it has no thruster).
   Detections before the fault time are counted as ``false_alarms_before_fault``;
+  ``wrong_first``: the first detection after the fault is not a correct one (a detected run
+  whose right detection came after a wrong one: a gyro fault named a thruster first);
 * ``error`` (the run raised; ``error`` holds it) and ``incomplete`` (the summary lacks ticks,
   the fault or a field; ``reason`` says which): failures, never a pass, left out of every rate
   and counted.
@@ -123,7 +125,7 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
         "fault_class": f["kind"] if f else "none",
         "fault": f, "params": spec.params, "verdict": None, "reason": None, "error": error,
         "detections": [], "false_alarms": 0, "false_alarms_before_fault": 0,
-        "latency_s": None, "detected_as": None, "named": None,
+        "latency_s": None, "detected_as": None, "named": None, "wrong_first": None,
         "commanded_after_fault": commanded_after, "commanded_ticks_after_fault": commanded_ticks,
         "first_command_after_fault_s": first_command_s, "latency_from_command_s": None,
         "fraction_error": None,
@@ -155,6 +157,7 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
     if after:
         row["named"] = f"{label(after[0]['thruster'])} {after[0]['type']}"
     correct = [d for d in after if d.get("correct")]
+    row["wrong_first"] = bool(after) and not after[0].get("correct")
     judged = any(g.get("thruster") == f.get("thruster") and g.get("type") == f["kind"]
                  for g in summary["missed_faults"]) or bool(correct)
     if correct:
@@ -229,6 +232,8 @@ def campaign_statistics(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 st["detected_exact"] = sum(r["detected_as"] == "exact" for r in det)
                 st["detected_group"] = sum(r["detected_as"] == "group" for r in det)
                 st["misidentified"] = verdicts["misidentified"]
+                # Detected, but a wrong detection came first (the confusion matrix's column).
+                st["wrong_first"] = sum(bool(r.get("wrong_first")) for r in det)
                 st["latency_s"] = _pct([r["latency_s"] for r in det])
                 st["false_alarm_before_fault"] = _rate(
                     sum(r["false_alarms_before_fault"] > 0 for r in done), len(done))

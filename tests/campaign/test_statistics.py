@@ -126,6 +126,28 @@ def test_a_gyro_fault_is_judged_like_a_thruster_fault(detections, verdict) -> No
     assert r["verdict"] == verdict
 
 
+def test_a_gyro_fault_named_a_thruster_first_is_detected_with_a_wrong_one_first() -> None:
+    """iss_rs-gyro run 19: a noise increase at 24.1 s, SM+pitch_II named stuck on at 31.6 s,
+    the gyro at 38.0 s. The run is detected (a right detection came), and the row and the
+    statistics say a wrong one was named first; the misidentified count does not hold it."""
+    from hil.summary import match_detections
+    fault = {"t_s": 24.1, "thruster": None, "type": "gyro_noise"}
+    dets = [{"t_s": 31.6, "thruster": "A", "type": "stuck_on", "correct": False},
+            {"t_s": 38.0, "thruster": None, "type": "gyro_fault", "gyro": "noise",
+             "correct": True, "latency_s": 13.9}]
+    matched, false_alarms, missed = match_detections([fault], dets)
+    spec = replace(SPEC, fault={"kind": "gyro_noise", "thruster": None, "t_s": 24.1, "axis": 1})
+    row = classify(spec, _summary(detections=matched, false_alarms=false_alarms,
+                                  missed_faults=missed, faults=[fault]))
+    assert row["verdict"] == "detected" and row["wrong_first"] is True
+    right = classify(spec, _summary(detections=matched[1:], false_alarms=false_alarms,
+                                    missed_faults=missed, faults=[fault]))
+    assert right["verdict"] == "detected" and right["wrong_first"] is False
+    st = campaign_statistics([row, right, {**right, "run": 2}])["by_vehicle"]["v"]["gyro_noise"]
+    assert st["wrong_first"] == 1 and st["misidentified"] == 0
+    assert st["detection"]["k"] == 3
+
+
 def test_verdicts() -> None:
     assert classify(SPEC, _summary(), commanded_after=True)["verdict"] == "missed"
     r = classify(SPEC, _summary(), commanded_after=False)
