@@ -31,8 +31,9 @@ regressor squared plus its running mean square), so W4 and W8 are dimensionless 
 full step and a step never moves the prediction by more than that fraction of its error
 (``|g dA| <= W4 |eps|``). Dividing by the running mean alone, which holds 5 % of ``g^2`` on the
 first quiet ticks after a burst, let one tick move it by 20 W4 of the error: on orel the roll
-channel's frequency fell from 0.3 Hz to the band's floor in two ticks after a slew
-(orel-envelope runs 29 and 254; tests/flight/test_observer_freq_step.py). ``A^`` is kept in the
+channel's frequency jumped from 0.3 Hz to 0.09 Hz, near the band's floor, in two ticks after a
+slew (orel-envelope run 254, true mode 0.40 Hz; run 29: to 0.22 Hz for 0.33 Hz;
+tests/flight/test_observer_freq_step.py). ``A^`` is kept in the
 band of frequencies ``freq_bounds_hz`` (default: the config's ``freq_band`` times f0, [f0/4,
 min(4 f0, 0.4/h)] unless the vehicle narrows it) so that an unmodelled input (a failed
 thruster) cannot drive it to a non-physical value. ``B`` is fixed from the

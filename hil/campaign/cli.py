@@ -74,7 +74,7 @@ def _print_summary(doc: dict[str, Any]) -> None:
                 print(f"  {veh} all faults: missed {_fmt_rate(st['missed_detection'])}, "
                       f"latency p50/p90/max {_fmt_lat(st['latency_s'])}")
             else:
-                wrong = st.get("wrong_first", 0)
+                wrong = st["wrong_first"]
                 print(f"  {veh} {cls}: missed {_fmt_rate(st['missed_detection'])}, "
                       f"unobservable {st['unobservable']}, latency p50/p90/max "
                       f"{_fmt_lat(st['latency_s'])}"

@@ -173,7 +173,7 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
                     continue
                 L.append(f"| {k} | {st['runs']} | {st['unobservable']} | {st['observable']} | "
                          f"{_fmt_rate(st['missed_detection'])} | {st['detected_exact']} / "
-                         f"{st['detected_group']} | {st.get('wrong_first', 0)} | "
+                         f"{st['detected_group']} | {st['wrong_first']} | "
                          f"{st['misidentified']} | "
                          f"{_fmt_lat(st['latency_s'])} | "
                          f"{_fmt_rate(st['false_alarm_before_fault'])} |")

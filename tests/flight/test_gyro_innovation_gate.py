@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from flight.gyro_check import _INNOVATION_SHARE, BIAS_STEP, SPIKE, GyroCheck
+from tests.flight.campaign_run import campaign_run
 
 NOISE_STD = 5e-6
 
@@ -77,10 +78,6 @@ def test_without_an_innovation_every_unexplained_step_is_named_as_before() -> No
 def test_orel_array_ringing_is_not_named_a_gyro_bias_step(run: int) -> None:
     """orel-envelope runs 70 and 187 (fault-free; in-plane mode at 0.92 Hz, 1.15 times its
     ground estimate): named a gyro bias step at 21.4 and 27.4 s before; nothing now."""
-    import sys
-    sys.path.insert(0, str(Path(__file__).parent))
-    from campaign_run import campaign_run
-
     with tempfile.TemporaryDirectory() as tmp:
         _, sim = campaign_run(Path(tmp), "orel-envelope", run)
     assert sim.summary["detections"] == []
