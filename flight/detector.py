@@ -125,6 +125,8 @@ def opposite_matrix(e_B: np.ndarray, opposite_deg: float) -> np.ndarray:
 
 # Ticks of a thruster's own burns the reported thrust fraction is the mean of.
 _FRACTION_TICKS = 3
+# Burns too small to be measured alone kept per thruster (``Effectiveness.fraction_since``).
+_SMALL_BURNS_KEPT = 50
 # Burns kept per thruster for ``Effectiveness.fraction_since`` (a detection's evidence window
 # is at most a few seconds of ticks; a thruster burns on some of them).
 _FRACTION_KEPT = 16
@@ -211,6 +213,10 @@ class Effectiveness:
         self._trusted = (self.x.copy(), self.P.copy())
         # Per thruster: (update count, thrust over nominal) of its last burns (``fraction``).
         self._recent: list[list[tuple[int, float]]] = [[] for _ in range(n)]
+        # Per thruster: (update count, burn weight |mu_j eff_j|^2, thrust over nominal) of its
+        # last burns of any size: their weighted mean stands in for ``theta`` when none of the
+        # window's burns is measurable alone (``fraction_since``).
+        self._burns: list[list[tuple[int, float, float]]] = [[] for _ in range(n)]
         self.updates = 0  # calls of ``update`` so far: the stamp of the next one's burns
         self.kept = _FRACTION_KEPT  # burns kept per thruster (at least the weak test's)
         self._since = 0  # the first update whose burns ``weak`` reads (after a restore)
@@ -270,6 +276,23 @@ class Effectiveness:
         since = [f for t, f in self._recent[j] if t >= stamp][-_FRACTION_TICKS:]
         if not since:
             value = self.theta[j]
+            if not healthiest:
+                # What is named (not what decides): with no burn measurable alone (a full tick
+                # of iss_rs's SM yaw or P2 roll thrusters moves the rate by less than twice the
+                # residual noise), the last burns together, newest first, until they weigh as
+                # much as _FRACTION_TICKS measurable ones, each weighted by its size, when they
+                # add up to one at least. Theta follows a thrust change only over many ticks: a
+                # P2 roll thruster that failed to fire while burning every tick still read 0.79
+                # six seconds later, named degraded.
+                one = 4.0 * self.r_var  # |mu_j eff_j|^2 of a burn of twice the noise
+                weight = total = 0.0
+                for t, w, f in reversed(self._burns[j]):
+                    if t < stamp or weight >= _FRACTION_TICKS * one:
+                        break
+                    weight += w
+                    total += w * f
+                if weight >= one:
+                    value = total / weight
         elif healthiest:
             value = max(np.mean(since), np.median(since))
         else:
@@ -309,6 +332,12 @@ class Effectiveness:
             hist = self._recent[j]
             hist.append((stamp, float(k_used[j] + phi @ r / (phi @ phi))))
             del hist[:-self.kept]
+        for j in np.flatnonzero(burn & ~big & (e > 0.0)):
+            phi = self.mu[j] * e[j]
+            w = float(phi @ phi)
+            hist = self._burns[j]
+            hist.append((stamp, w, float(k_used[j] + phi @ r / w)))
+            del hist[:-_SMALL_BURNS_KEPT]
         if self.bound <= 0.0:
             return  # learning off: only the measured fraction above
         d = np.diag_indices(len(self.x))
