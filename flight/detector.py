@@ -283,7 +283,7 @@ class Effectiveness:
                 # much as _FRACTION_TICKS measurable ones, each weighted by its size, when they
                 # add up to one at least. Theta follows a thrust change only over many ticks: a
                 # P2 roll thruster that failed to fire while burning every tick still read 0.79
-                # six seconds later, named degraded.
+                # eight seconds later, named degraded.
                 one = 4.0 * self.r_var  # |mu_j eff_j|^2 of a burn of twice the noise
                 weight = total = 0.0
                 for t, w, f in reversed(self._burns[j]):
