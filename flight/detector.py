@@ -130,6 +130,9 @@ _SMALL_BURNS_KEPT = 50
 # Burns kept per thruster for ``Effectiveness.fraction_since`` (a detection's evidence window
 # is at most a few seconds of ticks; a thruster burns on some of them).
 _FRACTION_KEPT = 16
+# A burn is measurable alone when it moves the rate by this many residual-noise sigmas
+# (``|mu_j eff_j| >= _MEASURABLE_SIGMA sqrt(r_var)``); smaller ones count only together.
+_MEASURABLE_SIGMA = 2.0
 # The absolute dead zone widens in proportion to the sensor noise when the quiet ticks show
 # more than its long-run level (GyroCheck.noise_ratio), so a noisier gyro does not read as
 # thrusters. Relative, not absolute: a vehicle's residual on quiet ticks holds more than its
@@ -284,7 +287,7 @@ class Effectiveness:
                 # add up to one at least. Theta follows a thrust change only over many ticks: a
                 # P2 roll thruster that failed to fire while burning every tick still read 0.79
                 # eight seconds later, named degraded.
-                one = 4.0 * self.r_var  # |mu_j eff_j|^2 of a burn of twice the noise
+                one = _MEASURABLE_SIGMA**2 * self.r_var  # |mu_j eff_j|^2 of a measurable burn
                 weight = total = 0.0
                 for t, w, f in reversed(self._burns[j]):
                     if t < stamp or weight >= _FRACTION_TICKS * one:
@@ -324,7 +327,7 @@ class Effectiveness:
             g = self.mu.T @ (k_used * np.where(avail, np.asarray(deff_dlat, float), 0.0))
             cols = np.concatenate([cols, [2 * n]])
             H = np.concatenate([H, g[:, None]], axis=1)
-        big = np.linalg.norm(self.mu, axis=1) * e >= 2.0 * math.sqrt(self.r_var)
+        big = np.linalg.norm(self.mu, axis=1) * e >= _MEASURABLE_SIGMA * math.sqrt(self.r_var)
         stamp = self.updates
         self.updates += 1
         for j in np.flatnonzero(burn & big):

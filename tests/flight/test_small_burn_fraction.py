@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flight.detector import _FRACTION_TICKS, Effectiveness
+from flight.detector import _FRACTION_TICKS, _MEASURABLE_SIGMA, Effectiveness
+from tests.flight.campaign_run import campaign_run
 
 H = 0.2
 # One thruster (x) whose full-tick burn is 1.5 noise sigma: never measurable alone.
@@ -43,7 +44,7 @@ def test_no_burn_is_measurable_alone_here() -> None:
 @pytest.mark.parametrize("theta0", [0.0, 0.4])
 def test_the_named_fraction_is_the_weighted_mean_of_the_last_burns(theta0: float) -> None:
     eff, burns = _burning(theta0, 40)
-    one = 4.0 * SIGMA**2
+    one = _MEASURABLE_SIGMA**2 * SIGMA**2
     w = f = 0.0
     for wk, fk in reversed(burns):
         if w >= _FRACTION_TICKS * one:
@@ -63,7 +64,7 @@ def test_what_decides_still_reads_theta() -> None:
 
 def test_too_few_burns_leave_theta() -> None:
     eff, burns = _burning(0.0, 1)
-    assert burns[0][0] < 4.0 * SIGMA**2
+    assert burns[0][0] < _MEASURABLE_SIGMA**2 * SIGMA**2
     assert eff.fraction[0] == pytest.approx(float(np.clip(eff.theta[0], 0, 1.5)))
 
 
@@ -76,8 +77,6 @@ def test_burns_before_the_window_are_not_read() -> None:
 @pytest.mark.parametrize("run", [138, 184])
 def test_a_progress_thruster_failing_while_burning_is_named_fails_to_fire(tmp_path,
                                                                           run: int) -> None:
-    from tests.flight.campaign_run import campaign_run
-
     spec, sim = campaign_run(tmp_path, "iss_rs-fails", run)
     assert spec.fault["kind"] == "fail_to_fire"
     after = [d for d in sim.summary["detections"] if d["t_s"] >= spec.fault["t_s"]]
