@@ -357,6 +357,15 @@ class DetectorCfg(_Model):
     # the gyro is suspect while it lasts. For a vehicle that fires on nearly every tick
     # (iss_rs: 97 % of the ticks). None: quiet ticks only.
     gyro_noise_all_ticks: PosFloat | None = None
+    # The gyro's noise test on every tick through a fit of the thrusters' errors
+    # (flight.gyro_check: the raw residual of the last 75 evidence ticks fitted on each
+    # thruster's learnt increment, its latency sensitivity and its partial burns; the
+    # leftover's lag-one autocovariance reads the sensor's noise with the thrusters' fixed
+    # scale, direction and timing errors taken out): an axis noisier than this many times the
+    # gyro's noise_std_rad_s for 10 ticks in a row, after 30 s of evidence, is a noise
+    # increase. For a vehicle that fires on nearly every tick and whose thrust errors are
+    # larger than its sensor's noise (kalman_cube). None: off.
+    gyro_noise_fit: PosFloat | None = None
 
 
 class KalmanCfg(_Model):

@@ -131,6 +131,31 @@ _SHARE_K, _SHARE_WARMUP, _SHARE_FORGET, _SHARE_CAP = 6.0, 25, 0.98, 3.0
 # _LAG_AGAIN of the level for a whole window (the window's mean of products fluctuates by
 # half its value on white noise: a dwell, not one tick below).
 _LAG_WINDOW, _LAG_WHITE, _LAG_TRIM, _LAG_AGAIN = 30, 0.35, 2, 0.25
+# Noise test on every tick through a fit of the thrusters' errors (``fit_noise_rad_s``): per
+# axis, the raw residual of the last _FIT_WINDOW evidence ticks (at least _FIT_DOF more than
+# the fit's unknowns) is fitted by least squares on the tick's regressors (given by the
+# flight: each thruster's learnt equivalent burn, its change per second of command latency
+# and its partial burns as a pulse's head and tail; a thruster's scale, direction and timing
+# errors are fixed over a window, so their share of the residual is a fixed linear function
+# of them) and a constant; the leftover's lag-one autocovariance over consecutive ticks, per
+# degree of freedom, is the sensor's white noise variance (it enters differenced) with the
+# thrusters' systematic errors taken out. Named when above the level on an axis whose
+# leftover's lag-one correlation is at most -_FIT_WHITE (noise alone: -0.5; the controller's
+# reaction to a noisier sensor adds per-tick errors of its own, which lower it: -0.27 to
+# -0.49 under 7e-5 rad/s of noise on kalman_cube) for _FIT_TICKS ticks in a row, and suspect
+# from then (not before: a one-tick jump lifts the window's level for a few ticks, and the
+# jump tests must see them untouched) until no axis has read above _FIT_AGAIN of the level
+# (squared) for a whole window. Judged only once _FIT_WARMUP windows of ticks have gone by
+# since the start or a response: a window holding the first pulses after a coast, before the
+# latency and the effectiveness are learnt, read up to 7 times the sensor's noise
+# (kalman_cube-hold600 run 2, ticks 37-39). Measured on kalman_cube, offline on the recorded
+# residuals (141 kalman_cube-envelope and 20 kalman_cube-hold600 runs fault-free, 20
+# kalman_cube-gyro noise increases of 3-10 times the sensor's noise): the ten-tick minimum of
+# the level peaked at 2.1 times the gyro's noise_std fault-free, 3.0 in one 600 s hold (run
+# 16: a limit cycle changing pattern); without the heads and tails 5.6 (run 19: opposite
+# thrusters' tails sharing ticks); the noise increases crossed 3.5 times it in 19 of 20 runs.
+_FIT_WINDOW, _FIT_DOF, _FIT_TICKS, _FIT_AGAIN, _FIT_WARMUP = 75, 30, 10, 0.5, 2
+_FIT_WHITE = 0.2
 # A held jump is named a spike or a bias step only if the observer's innovation along it is at
 # least this share of it (``_observer_surprised``). orel-envelope: the in-plane mode ringing at
 # 0.92 Hz put 6.0e-4 rad/s into the raw residual with 0.26e-4 in the innovation (4 %), and its
@@ -174,7 +199,8 @@ class GyroCheck:
                  explain_factor: float = 1.5, return_fraction: float = 0.3,
                  slow_forget: float = 0.995, noise_ticks: int = 3, warmup_ticks: int = 30,
                  start_ticks: int = 2, hold_rad_s: float | None = None,
-                 lag_noise_rad_s: float | None = None) -> None:
+                 lag_noise_rad_s: float | None = None,
+                 fit_noise_rad_s: float | None = None) -> None:
         self.jump_rad_s = float(jump_rad_s)
         self.hold_rad_s = self.jump_rad_s if hold_rad_s is None else float(hold_rad_s)
         # per axis: a third of the three axes' floor (sensor noise sigma: 18 sigma^2 for the
@@ -216,6 +242,13 @@ class GyroCheck:
         self._lag_over = 0
         self._lag_calm = 0  # ticks in a row without noise after it was named
         self.lag_sigma_rad_s = 0.0  # the largest axis's noise the lag test reads (0 until known)
+        self.fit_noise2 = None if fit_noise_rad_s is None else float(fit_noise_rad_s) ** 2
+        self._fit_rows: list[tuple[int, np.ndarray, np.ndarray]] = []  # (call, r, regressors)
+        self._fit_over = 0
+        self._fit_calm = 0
+        self._fit_seen = 0  # evidence ticks since the start or the last restart
+        self.fit_sigma_rad_s = 0.0  # the largest white axis's noise the fit test reads
+        self.fit_lag2 = np.zeros(3)  # per axis, the fit's last lag-one level (rad/s)^2
 
     def forget_pending(self) -> None:
         """The flight changed the dynamics itself (an FDIR response): a held jump is not to be
@@ -236,6 +269,9 @@ class GyroCheck:
         self._slow = np.zeros(3)
         self._quiet = 0
         self._over = 0
+        self._fit_rows = []
+        self._fit_seen = 0
+        self._fit_over = 0
 
     def _white(self) -> np.ndarray:
         """Per axis: do the window's differences look like white noise's? The differences of
@@ -280,12 +316,18 @@ class GyroCheck:
 
     def step(self, y: np.ndarray, predicted_change: np.ndarray,
              thrust_abs: float, increments: np.ndarray | None = None,
-             innovation: np.ndarray | None = None) -> GyroVerdict:
+             innovation: np.ndarray | None = None,
+             regressors: np.ndarray | None = None) -> GyroVerdict:
+        """One tick (class doc); ``regressors`` (M,): the tick's inputs of the fit noise test
+        (``fit_noise_rad_s``; each thruster's learnt increment and its latency sensitivity),
+        the same layout on every tick."""
         self._innovation = None if innovation is None else np.asarray(innovation, float)
         v = self._step(y, predicted_change, thrust_abs, increments)
         self._u_prev = None if increments is None else np.array(increments, dtype=float)
         if self.lag_noise2 is not None:
             v = self._lag_noise(v)
+        if self.fit_noise2 is not None and regressors is not None:
+            v = self._fit_noise(v, np.asarray(regressors, dtype=float))
         if self._noisy_now and not v.suspect:
             # A gyro known to be noisy: no tick of it is thruster evidence.
             self._pending = None
@@ -494,6 +536,60 @@ class GyroCheck:
         self._lag_over += 1
         fault = v.fault
         if fault is None and self._lag_over >= self.noise_ticks:
+            fault = self._report(NOISE)
+        self._pending = None
+        return replace(v, suspect=True, hold=False, drop_previous=True, fault=fault,
+                       defer_learning=False)
+
+    def _fit_noise(self, v: GyroVerdict, x: np.ndarray) -> GyroVerdict:
+        """The noise test through a fit of the thrusters' errors (``_FIT_WINDOW``): suspect
+        while an axis reads noisy, the noise named after ``_FIT_TICKS`` such ticks in a row.
+        The same ticks as the lag test are left out of it."""
+        ok = not (v.hold or v.resync or v.fault is not None or v.taint_previous
+                  or self._repeats > 0 or self._calls <= self.start_ticks)
+        if ok:
+            if self._fit_rows and len(self._fit_rows[-1][2]) != len(x):
+                self._fit_rows = []
+            self._fit_rows.append((self._calls, v.residual.copy(), x.copy()))
+            self._fit_seen += 1
+        window = max(_FIT_WINDOW, len(x) + 1 + _FIT_DOF)
+        del self._fit_rows[:-window]
+        if self._fit_seen < _FIT_WARMUP * window:
+            return v
+        calls = np.array([c for c, _, _ in self._fit_rows])
+        pairs = calls[1:] == calls[:-1] + 1
+        if not pairs.any():
+            return v
+        r = np.array([q for _, q, _ in self._fit_rows])
+        a = np.column_stack([np.array([z for _, _, z in self._fit_rows]), np.ones(window)])
+        scale = np.linalg.norm(a, axis=0)
+        a = a / np.where(scale > 0.0, scale, 1.0)
+        beta, _, rank, _ = np.linalg.lstsq(a, r, rcond=None)
+        e = r - a @ beta
+        dof = max(window - int(rank), 1)
+        var = (e * e).sum(axis=0) / dof
+        lag = -(e[1:] * e[:-1])[pairs].sum(axis=0) / int(pairs.sum()) * (window - 1) / dof
+        self.fit_lag2 = lag
+        white = lag >= _FIT_WHITE * var
+        noisy = (lag > self.fit_noise2) & white
+        self.fit_sigma_rad_s = float(np.sqrt(max(float(np.max(np.where(white, lag, 0.0))),
+                                                 0.0)))
+        if self.fault == NOISE:
+            if (lag > _FIT_AGAIN * self.fit_noise2).any():
+                self._fit_calm = 0
+            else:
+                self._fit_calm += 1
+            noisy = noisy | np.full(3, self._fit_calm < window)
+        if not noisy.any():
+            self._fit_over = 0
+            return v
+        self._fit_over += 1
+        if self._fit_over < _FIT_TICKS and self.fault != NOISE:
+            # Not yet: one tick's jump (a bias step, a spike) lifts the window's level for a
+            # few ticks, and the jump tests must see the ticks around it untouched.
+            return v
+        fault = v.fault
+        if fault is None:
             fault = self._report(NOISE)
         self._pending = None
         return replace(v, suspect=True, hold=False, drop_previous=True, fault=fault,

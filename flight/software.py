@@ -207,7 +207,9 @@ class FlightSoftware:
         self.gyro_check = GyroCheck(jump, math.sqrt(18.0) * vehicle.gyro.noise_std_rad_s,
                                     hold_rad_s=dc.gyro_hold_rad_s,
                                     lag_noise_rad_s=None if dc.gyro_noise_all_ticks is None
-                                    else dc.gyro_noise_all_ticks * vehicle.gyro.noise_std_rad_s)
+                                    else dc.gyro_noise_all_ticks * vehicle.gyro.noise_std_rad_s,
+                                    fit_noise_rad_s=None if dc.gyro_noise_fit is None
+                                    else dc.gyro_noise_fit * vehicle.gyro.noise_std_rad_s)
         # confirm_stuck_on: noisy: the square of the every-tick noise level, and (tick, raw
         # residual) of the last ticks the gyro check judged (kept only then)
         self._noisy_level2 = None if dc.confirm_stuck_on != "noisy" else (
@@ -224,6 +226,7 @@ class FlightSoftware:
         # Commanded effect kept for the relative dead zone (detector.relative_dead_zone_memory).
         self._commanded_kept = 0.0
         self._u_abs_last = np.zeros(3)  # the last tick's burns along each axis (flex_share)
+        self._burn_prev: np.ndarray | None = None  # the last interval's burns (gyro_noise_fit)
         # (detection held back, the pair left out of the allocation, ticks left) while probing
         self._probe: tuple[Detection | None, tuple[int, int], int] | None = None
         self._probed: dict[tuple[int, int], int] = {}
@@ -322,6 +325,28 @@ class FlightSoftware:
             inc = inc + pred.dangle_thr_B_rad - 0.5 * h * pred.dw_thr_B_rad_s
         return inc
 
+    def _fit_regressors(self, pred) -> np.ndarray | None:
+        """The gyro check's fit noise test inputs of the tick (``detector.gyro_noise_fit``):
+        each thruster's learnt equivalent burn, with the latency learnt its change per second
+        of command latency, and its partial burns (under a whole tick) split by whether it
+        burnt in the interval before (a pulse's tail) or not fully (its head): the on and off
+        transients of a pulse, which the equivalent burn holds only to first order, depend on
+        where they fall (kalman_cube-hold600 run 19: a limit cycle whose opposite thrusters'
+        heads and tails share ticks read 5.6 times the sensor's noise without them). None
+        when the test is off or the model gives no burns."""
+        burn_prev, self._burn_prev = self._burn_prev, np.asarray(pred.burn_s, dtype=float)
+        if self.gyro_check.fit_noise2 is None or pred.eff_s is None:
+            return None
+        burn = self._burn_prev
+        bp = burn if burn_prev is None else burn_prev
+        whole = self.h - 1e-9
+        partial = (burn > 0.0) & (burn < whole)
+        parts = [self.effectiveness.k * pred.eff_s]
+        if pred.deff_dlat is not None:
+            parts.append(pred.deff_dlat)
+        parts += [(partial & (bp < whole)).astype(float), (partial & (bp > 0.0)).astype(float)]
+        return np.concatenate(parts)
+
     def stage_detector(self) -> None:
         """Gyro check, residual, integral residuals, effectiveness, Kalman leak test, FDIR."""
         w_hat = self._obs.omega_hat_B_rad_s
@@ -331,6 +356,7 @@ class FlightSoftware:
             # Not evidence (begin): skip every evidence update of this tick.
             self._omega_pred = pred.omega_calc_B_rad_s
             self.gyro_check.skip(self._y)
+            self._burn_prev = np.asarray(pred.burn_s, dtype=float)
             self._held = None
             self._deferred_learning = None
             self._det_out = self.detector.skip(w_hat - self._omega_pred)
@@ -360,7 +386,8 @@ class FlightSoftware:
             if pred.eff_s is not None:
                 inc = self.arrays.mu_B_rad_s2 * (self.effectiveness.k * pred.eff_s)[:, None]
             verdict = self.gyro_check.step(self._y, change, pred.dw_thr_abs_rad_s, inc,
-                                           self._obs.innovation_B_rad_s)
+                                           self._obs.innovation_B_rad_s,
+                                           self._fit_regressors(pred))
             if self._noisy_level2 is not None:
                 self._raw_recent.append((self._tick, np.asarray(verdict.residual, dtype=float)))
                 del self._raw_recent[:-_NOISY_TICKS - 1]
