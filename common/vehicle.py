@@ -323,6 +323,16 @@ class DetectorCfg(_Model):
     leak_fit_sigma: float = Field(default=6.0, ge=0.0, le=100.0)
     leak_fit_ticks: int = Field(default=25, ge=3, le=1000)
     leak_fit_hold: int = Field(default=5, ge=1, le=1000)
+    # The leak-fit test also fits a leak that began inside the window (the onset tick that fits
+    # best, with at least this many closed-valve ticks from it), and a burning thruster's
+    # deficit likewise as its rival. A stuck-on thruster steps the raw residual up and holds
+    # it there; fitted over the whole window, the quiet ticks before the step dilute it for
+    # most of the window. None: the whole window only.
+    leak_fit_onset_ticks: int | None = Field(default=None, ge=2, le=1000)
+    # ... named at this leak or more (a stuck thruster's step; small leaks are the whole
+    # window's), for ``leak_fit_onset_hold`` ticks in a row.
+    leak_fit_onset_min: float = Field(default=0.3, gt=0.0, lt=1.0)
+    leak_fit_onset_hold: int = Field(default=2, ge=1, le=1000)
     # A commanded-evidence detection whose estimated thrust fraction is at least this is
     # "degraded" (with the fraction), below it "fails to fire". chosen: halfway between a
     # thruster that gives nothing and the smallest degradation worth reporting (30 %).

@@ -93,6 +93,11 @@ _NOISY_TICKS = 5
 # The leak-fit test names a leak only when it leaves less than this share of what the best
 # other explanation leaves (another thruster's leak, a burning thruster's deficit).
 _LEAK_RIVAL_RSS = 0.7
+# The leak-fit onset test judges only after this many windows of evidence since the start or
+# a restart: the first seconds' burns (a slew from up to 30 deg with every thrust scale still
+# at its prior) fitted as a leak that began inside the first window (iss_rs-envelope: 2 of 500
+# runs named a stuck-on 5.4-5.6 s into the run, the only two the onset fit added).
+_ONSET_AFTER = 2
 # What the isolation returns when neither hypothesis of a pair holds (_isolate_opposite).
 NEITHER = Detection(tick=-1, thruster=-1, kind="none", group=(), names=(), rho=0.0)
 # The probe starts before a crossing when a failing thruster's and its opposite's stuck-on
@@ -156,6 +161,32 @@ def _rss_one(y: np.ndarray, x: np.ndarray) -> float:
     if xx <= 0.0 or xy <= 0.0:
         return yy
     return max(yy - xy * xy / xx, 0.0)
+
+
+def _onset_fits(raw: np.ndarray, s: np.ndarray, mu: np.ndarray,
+                min_support: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One-parameter least-squares fits of the residual ``raw`` (W, 3) by each column of the
+    regressor ``s`` (W, N) along its direction ``mu`` (N, 3), each starting at the onset tick
+    that fits best: ``raw(k) ~ c s(k, j) mu_j`` for ``k >= k0``, nothing before. Onsets with
+    fewer than ``min_support`` ticks of nonzero regressor from them are not tried, nor fits of
+    negative size. Returns ``(rss, c, xx, k0)``, each (N,); ``rss`` is ``inf`` where no onset
+    fits."""
+    a = s * s * (mu * mu).sum(axis=1)[None, :]            # (W, N) |x_k|^2
+    b = s * (raw @ mu.T)                                  # (W, N) x_k . raw_k
+    A = np.cumsum(a[::-1], axis=0)[::-1]                  # suffix sums from each onset
+    B = np.cumsum(b[::-1], axis=0)[::-1]
+    support = np.cumsum((s != 0.0)[::-1], axis=0)[::-1]
+    ok = (A > 0.0) & (B > 0.0) & (support >= min_support)
+    gain = np.where(ok, B * B / np.where(A > 0.0, A, 1.0), -np.inf)   # what each onset explains
+    k0 = np.argmax(gain, axis=0)
+    cols = np.arange(s.shape[1])
+    best = gain[k0, cols]
+    yy = float((raw * raw).sum())
+    fit = np.isfinite(best)
+    rss = np.where(fit, np.maximum(yy - np.where(fit, best, 0.0), 0.0), np.inf)
+    xx = A[k0, cols]
+    c = np.where(fit, B[k0, cols] / np.where(xx > 0.0, xx, 1.0), 0.0)
+    return rss, c, xx, k0
 
 
 class FlightSoftware:
@@ -229,6 +260,8 @@ class FlightSoftware:
         self._burn_prev: np.ndarray | None = None  # the last interval's burns (gyro_noise_fit)
         # (detection held back, the pair left out of the allocation, ticks left) while probing
         self._probe: tuple[Detection | None, tuple[int, int], int] | None = None
+        self._onset_streak = (-1, 0)  # the leak-fit onset test's (thruster, ticks in a row)
+        self._leak_seen = 0  # ticks in the leak-fit window since it last restarted
         self._probed: dict[tuple[int, int], int] = {}
         # (stuck-on waiting for the next tick, its raw residual along the thruster) and the
         # crossings the next tick did not confirm (DetectorCfg.confirm_stuck_on)
@@ -529,6 +562,7 @@ class FlightSoftware:
         win = self._leak_window
         if len(win) < dc.leak_fit_ticks:
             self._leak_streak = (-1, 0)
+            self._onset_streak = (-1, 0)
             return None
         avail = self.fdir.available
         sw = 1.0 / np.sqrt(np.array([w[2] for w in win]))     # (W,) 1 / sigma per tick
@@ -536,6 +570,17 @@ class FlightSoftware:
         eff = np.array([w[1] for w in win])                    # (W, N)
         mu = self.arrays.mu_B_rad_s2
         closed = (self.h - np.clip(eff, 0.0, self.h)) * sw[:, None]
+        det = self._leak_fit_whole(raw, eff, closed, sw, avail)
+        if det is None and dc.leak_fit_onset_ticks is not None \
+                and self._leak_seen >= _ONSET_AFTER * dc.leak_fit_ticks:
+            det = self._leak_fit_onset(raw, eff, closed, sw, avail)
+        return det
+
+    def _leak_fit_whole(self, raw: np.ndarray, eff: np.ndarray, closed: np.ndarray,
+                        sw: np.ndarray, avail: np.ndarray) -> Detection | None:
+        """The leak-fit test over the whole window (a leak there from its first tick)."""
+        dc = self.detector.cfg
+        mu = self.arrays.mu_B_rad_s2
         yy = float((raw * raw).sum())
         fits = []
         for j in np.flatnonzero(avail):
@@ -572,6 +617,103 @@ class FlightSoftware:
                           names=tuple(self.arrays.names[x] for x in g), rho=c,
                           source="leak_fit", fraction=None)
         return self._settle(found, found)
+
+    def _leak_fit_onset(self, raw: np.ndarray, eff: np.ndarray, closed: np.ndarray,
+                        sw: np.ndarray, avail: np.ndarray) -> Detection | None:
+        """The leak-fit test with the leak's onset inside the window
+        (``DetectorCfg.leak_fit_onset_ticks``): each thruster's leak, and each burning
+        thruster's deficit as its rival, fitted from the tick it began (``_onset_fits``), so a
+        step that began a few ticks ago is not averaged with the quiet ticks before it (the
+        adaptive observer takes a stuck thrust in within a few ticks; the raw residual keeps
+        it). One parameter more than the fit over the whole window: ``n - 2`` degrees of
+        freedom."""
+        dc = self.detector.cfg
+        mu = self.arrays.mu_B_rad_s2
+        m = int(dc.leak_fit_onset_ticks)
+        use = avail.astype(float)[None, :]
+        rss, c, xx, _ = _onset_fits(raw, closed * use, mu, m)
+        if not np.isfinite(rss).any():
+            self._onset_streak = (-1, 0)
+            return None
+        j = int(np.argmin(rss))
+        group = self.detector.groups[j]
+        others = np.array([x not in group for x in range(len(rss))]) & np.isfinite(rss)
+        rival = float(rss[others].min()) if others.any() else math.inf
+        burnt = avail & (eff > 0.0).any(axis=0)
+        deficit = math.inf
+        rd = None
+        if burnt.any():
+            rd, cd, _, _ = _onset_fits(raw, -(self.effectiveness.k * eff * burnt) * sw[:, None],
+                                       mu, m)
+            deficit = float(rd.min())
+        dof = max(raw.size - 2, 1)
+        se = math.sqrt(max(float(rss[j]) / dof, 1.0) / float(xx[j]))
+        sure = c[j] >= dc.leak_fit_onset_min and c[j] >= dc.leak_fit_sigma * se \
+            and rss[j] < _LEAK_RIVAL_RSS * rival
+        ok = sure and rss[j] < _LEAK_RIVAL_RSS * deficit
+        if sure and not ok and rd is not None:
+            # Only a burning thruster's deficit rivals the leak: when that thruster acts
+            # against the leaking one (within _ALIKE_DEG of its opposite: the controller fights
+            # the leak with it on every tick, so neither the timing nor the direction tells
+            # them apart), probe the pair as for the detector's crossings: two ticks without
+            # either, where a leak still pushes and a deficit cannot. A deficit within the
+            # admitted thrust errors (the learning's bound) is no fault, and it explains the
+            # residual as well: nothing is named then.
+            i = int(np.argmin(rd))
+            e = self.detector.e_B
+            if float(e[i] @ e[j]) <= -math.cos(math.radians(_ALIKE_DEG)) and rss[j] <= rd[i] \
+                    and cd[i] > self.effectiveness.bound and \
+                    self._tick - self._probed.get((i, j), -10**9) >= _ISOLATION_TICKS:
+                self._probed[(i, j)] = self._tick
+                self._onset_streak = (-1, 0)
+                g = tuple(x for x in group if avail[x])
+                found = Detection(tick=self._tick, thruster=j, kind=STUCK_ON, group=g,
+                                  names=tuple(self.arrays.names[x] for x in g),
+                                  rho=float(c[j]), source="leak_fit", fraction=None)
+                self._probe = (found, (i, j), _PROBE_TICKS)
+                return self._settle(None, found)
+        streak = self._onset_streak[1] + 1 if ok and self._onset_streak[0] == j else int(ok)
+        self._onset_streak = (j if ok else -1, streak)
+        if not ok or streak < dc.leak_fit_onset_hold:
+            return None
+        self._onset_streak = (-1, 0)
+        g = tuple(x for x in group if avail[x])
+        found = Detection(tick=self._tick, thruster=j, kind=STUCK_ON, group=g,
+                          names=tuple(self.arrays.names[x] for x in g), rho=float(c[j]),
+                          source="leak_fit", fraction=None)
+        return self._settle(found, found)
+
+    def _leak_probe_decide(self, det: Detection, pair: tuple[int, int]) -> Detection | None:
+        """After the probe of a leak-fit finding (``_leak_fit_onset``): j's leak against i's
+        deficit, each fitted from its best onset over the window with the probe's ticks in it
+        (where a leak still pushes and a deficit cannot); the better fit is named: j stuck on,
+        or i degraded or failing with the thrust fraction the deficit's fit leaves. ``NEITHER``
+        when neither fits, or the deficit is within the admitted thrust errors."""
+        i, j = pair
+        win = self._leak_window
+        sw = 1.0 / np.sqrt(np.array([w[2] for w in win]))
+        raw = np.array([w[0] for w in win]) * sw[:, None]
+        eff = np.array([w[1] for w in win])
+        mu = self.arrays.mu_B_rad_s2[[j, i]]
+        s = np.stack([(self.h - np.clip(eff[:, j], 0.0, self.h)) * sw,
+                      -self.effectiveness.k[i] * eff[:, i] * sw], axis=1)
+        rss, c, _, _ = _onset_fits(raw, s, mu, int(self.detector.cfg.leak_fit_onset_ticks))
+        if not np.isfinite(rss).any():
+            return NEITHER
+        avail = self.fdir.available
+        if rss[0] <= rss[1]:
+            return replace(det, tick=self._tick, source="isolation")
+        # The deficit fits better: its size is what i's burns lack from its onset on
+        # (the fit's own estimate, over the probe's ticks too); within the admitted thrust
+        # errors it is no fault (NEITHER).
+        if c[1] <= self.effectiveness.bound:
+            return NEITHER
+        frac = float(min(max(1.0 - c[1], 0.0), 1.0))
+        kind = DEGRADED if frac >= self.detector.cfg.fail_fraction else FAIL_TO_FIRE
+        group = tuple(g for g in self.detector.groups[i] if avail[g])
+        return Detection(tick=self._tick, thruster=i, kind=kind, group=group,
+                         names=tuple(self.arrays.names[g] for g in group),
+                         rho=float(self.detector.rho_on[i]), source="isolation", fraction=frac)
 
     def _weak_detection(self, i: int) -> tuple[Detection | None, Detection | None]:
         """The burn-fraction test named thruster ``i``: ``(what is named, what was found)`` for
@@ -669,6 +811,8 @@ class FlightSoftware:
                 var = (self.detector.dead_zone_rad_s() / 3.0) ** 2 + float(np.trace(
                     self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat))) / 3
                 self._leak_window.append((self._window[-1][3], self._window[-1][1], var))
+                # ticks of evidence since the window last restarted (start, response, gyro)
+                self._leak_seen = self._leak_seen + 1 if len(self._leak_window) > 1 else 1
                 del self._leak_window[:-self.detector.cfg.leak_fit_ticks]
             if self._probe is not None:
                 held_det, pair, left = self._probe
@@ -679,6 +823,8 @@ class FlightSoftware:
                     return None
                 else:
                     self._probe = None
+                    if held_det.source == "leak_fit":
+                        return self._settle(self._leak_probe_decide(held_det, pair), None)
                     return self._settle(self._isolate_opposite(held_det, avail, decide=True),
                                         None)
             elif out.detection is None and self.detector.latched is None:
