@@ -568,7 +568,6 @@ class FlightSoftware:
         sw = 1.0 / np.sqrt(np.array([w[2] for w in win]))     # (W,) 1 / sigma per tick
         raw = np.array([w[0] for w in win]) * sw[:, None]      # (W, 3) in sigmas
         eff = np.array([w[1] for w in win])                    # (W, N)
-        mu = self.arrays.mu_B_rad_s2
         closed = (self.h - np.clip(eff, 0.0, self.h)) * sw[:, None]
         det = self._leak_fit_whole(raw, eff, closed, sw, avail)
         if det is None and dc.leak_fit_onset_ticks is not None \
