@@ -611,11 +611,16 @@ class FlightSoftware:
         if not ok or streak < dc.leak_fit_hold:
             return None
         self._leak_streak = (-1, 0)
-        g = tuple(x for x in group if avail[x])
-        found = Detection(tick=self._tick, thruster=j, kind=STUCK_ON, group=g,
-                          names=tuple(self.arrays.names[x] for x in g), rho=c,
-                          source="leak_fit", fraction=None)
+        found = self._leak_found(j, c, avail)
         return self._settle(found, found)
+
+    def _leak_found(self, j: int, c: float, avail: np.ndarray) -> Detection:
+        """The leak-fit tests' finding: thruster j (its available direction group) stuck on,
+        its fitted leak ``c`` as rho."""
+        g = tuple(x for x in self.detector.groups[j] if avail[x])
+        return Detection(tick=self._tick, thruster=j, kind=STUCK_ON, group=g,
+                         names=tuple(self.arrays.names[x] for x in g), rho=float(c),
+                         source="leak_fit", fraction=None)
 
     def _leak_fit_onset(self, raw: np.ndarray, eff: np.ndarray, closed: np.ndarray,
                         sw: np.ndarray, avail: np.ndarray) -> Detection | None:
@@ -665,10 +670,7 @@ class FlightSoftware:
                     self._tick - self._probed.get((i, j), -10**9) >= _ISOLATION_TICKS:
                 self._probed[(i, j)] = self._tick
                 self._onset_streak = (-1, 0)
-                g = tuple(x for x in group if avail[x])
-                found = Detection(tick=self._tick, thruster=j, kind=STUCK_ON, group=g,
-                                  names=tuple(self.arrays.names[x] for x in g),
-                                  rho=float(c[j]), source="leak_fit", fraction=None)
+                found = self._leak_found(j, c[j], avail)
                 self._probe = (found, (i, j), _PROBE_TICKS)
                 return self._settle(None, found)
         streak = self._onset_streak[1] + 1 if ok and self._onset_streak[0] == j else int(ok)
@@ -676,10 +678,7 @@ class FlightSoftware:
         if not ok or streak < dc.leak_fit_onset_hold:
             return None
         self._onset_streak = (-1, 0)
-        g = tuple(x for x in group if avail[x])
-        found = Detection(tick=self._tick, thruster=j, kind=STUCK_ON, group=g,
-                          names=tuple(self.arrays.names[x] for x in g), rho=float(c[j]),
-                          source="leak_fit", fraction=None)
+        found = self._leak_found(j, c[j], avail)
         return self._settle(found, found)
 
     def _leak_probe_decide(self, det: Detection, pair: tuple[int, int]) -> Detection | None:
