@@ -8,7 +8,10 @@ by ``--seed``. Two senders (``--sender``):
   (``can-bcm``) sends the frames from its timers, so the flood costs no process wake-ups and
   reaches rates a Python loop cannot inside user-mode Linux. The frames are generated once from
   the seed, 256 per timer, and sent in turn, again and again; the rate is shared by
-  ``ceil(rate / 500)`` timers. What was sent is read back from the kernel at the end (exact);
+  ``ceil(rate / 500)`` timers. What was sent is read back from the kernel at the end: exact
+  when the flood runs its ``seconds`` (each timer stops at its count, and is read after it
+  stopped); a flood stopped early (a signal, or timers still behind at twice the duration)
+  reads each timer just before deleting it, and may miss the frames of that instant;
 * ``python``: bursts of one millisecond's worth from a loop (``sendmmsg`` on SocketCAN).
 
 ``auto`` (the default) takes ``kernel`` where it can and says which in the result.
@@ -249,25 +252,30 @@ class KernelFlood:
 
     def sent_per_job(self) -> list[int]:
         """Frames each job has sent so far (its count left, read back from the kernel)."""
+        return [self._read(job) for job in range(len(self.groups))]
+
+    def _read(self, job: int) -> int:
         sc, bcm = self._sc, self._bcm
         size = ctypes.sizeof(sc.BcmMsgHead)
-        out = []
-        for job in range(len(self.groups)):
-            self.sock.send(sc.build_bcm_header(bcm.CAN_BCM_TX_READ, 0, 0, 0, 0, 0, 0, job, 0))
-            while True:
-                reply = self.sock.recv(size + 64 * (BCM_NFRAMES + 1))
-                head = sc.BcmMsgHead.from_buffer_copy(reply[:size])
-                if head.can_id == job:
-                    break
-            out.append(self.count - int(head.count))
-        return out
+        self.sock.send(sc.build_bcm_header(bcm.CAN_BCM_TX_READ, 0, 0, 0, 0, 0, 0, job, 0))
+        while True:
+            reply = self.sock.recv(size + 64 * (BCM_NFRAMES + 1))
+            head = sc.BcmMsgHead.from_buffer_copy(reply[:size])
+            if head.can_id == job:
+                return self.count - int(head.count)
+
+    def done(self) -> bool:
+        """Whether every job has sent its ``count`` (its timer has stopped)."""
+        return all(n >= self.count for n in self.sent_per_job())
 
     def stop(self) -> list[int]:
-        """Stop every job; returns what each sent."""
+        """Stop every job; returns what each sent (each job read just before its deletion)."""
+        sc = self._sc
         try:
-            sent = self.sent_per_job()
+            sent = []
             for job in range(len(self.groups)):
-                self.sock.send(self._sc.build_bcm_tx_delete_header(job, 0))
+                sent.append(self._read(job))
+                self.sock.send(sc.build_bcm_tx_delete_header(job, 0))
         finally:
             self.sock.close()
         return sent
@@ -295,7 +303,12 @@ def _kernel_flood(kind: str, rate_hz: float, seconds: float, channel: str, seed:
     t0 = time.monotonic()
     kf = KernelFlood(channel, groups, 1.0 / per_job_hz, count)
     try:
-        while not stop() and (seconds <= 0 or time.monotonic() - t0 < seconds + 0.05):
+        # a timed flood waits for its timers to reach their count (they lag inside user-mode
+        # Linux under load), so what is read back is what was sent; at most twice the time
+        while not stop():
+            elapsed = time.monotonic() - t0
+            if seconds > 0 and elapsed >= seconds and (kf.done() or elapsed > 2 * seconds + 1):
+                break
             time.sleep(0.02)
     finally:
         sent = kf.stop()
