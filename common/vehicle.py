@@ -333,6 +333,15 @@ class DetectorCfg(_Model):
     # window's), for ``leak_fit_onset_hold`` ticks in a row.
     leak_fit_onset_min: float = Field(default=0.3, gt=0.0, lt=1.0)
     leak_fit_onset_hold: int = Field(default=2, ge=1, le=1000)
+    # A stuck-on crossing whose neighbours in direction (flight.software._ALIKE_DEG) are
+    # crossing too waits up to this many ticks for the raw residual to tell them apart: each
+    # one's leak is fitted over the evidence ticks, and the best is named once it leaves at
+    # least _ALIKE_MARGIN noise variances less than the next (or when the wait is over); each
+    # tick waited must go on along the crossing's direction, as a confirmation. On a detector
+    # that crosses on one tick (iss_rs), one tick cannot tell thrusters 7-14 deg apart (its
+    # noise turns the residual by about as much). None: named at once, from the sum of the
+    # raw residual over the ticks (_ALIKE_MIN_TICKS or more).
+    alike_wait_ticks: int | None = Field(default=None, ge=1, le=9)
     # A commanded-evidence detection whose estimated thrust fraction is at least this is
     # "degraded" (with the fraction), below it "fails to fire". chosen: halfway between a
     # thruster that gives nothing and the smallest degradation worth reporting (30 %).

@@ -65,6 +65,13 @@ _ALIKE_SHARE = 0.5
 # observer removes, and only a sum over a few ticks averages it out (iss_rs crosses on one
 # tick, where the raw direction named a neighbour in 3 of 23 stuck-on runs it got right).
 _ALIKE_MIN_TICKS = 3
+# With DetectorCfg.alike_wait_ticks, a neighbour is named once its leak's fit over the
+# evidence ticks (two or more: the crossing's and a tick waited) leaves at least this many
+# noise variances (a third of the dead zone, squared) less than the next neighbour's. chosen:
+# iss_rs-stuck (120 runs, every tick of every wait): at 6 or more the best fit was the stuck
+# thruster on 53 of 54 ticks with two or three ticks of evidence; on the crossing's tick
+# alone, 30 of 33 (at 9 or more, 17 of 20: one tick's error is not noise alone).
+_ALIKE_MARGIN = 6.0
 # A burn of at least this share of the tick (one thruster) is a sustained firing: its
 # commanded effect is kept for the relative dead zone of the next ticks
 # (detector.relative_dead_zone_memory). Short pulses, such as the controller's against a
@@ -266,6 +273,9 @@ class FlightSoftware:
         # (stuck-on waiting for the next tick, its raw residual along the thruster) and the
         # crossings the next tick did not confirm (DetectorCfg.confirm_stuck_on)
         self._confirm: tuple[Detection, float] | None = None
+        # (stuck-on crossing, its neighbours, its raw residual along it, ticks waited) while
+        # the next ticks tell the neighbours apart (DetectorCfg.alike_wait_ticks)
+        self._alike_hold: tuple[Detection, list[int], float, int] | None = None
         self.unconfirmed_stuck_on = 0
         self._gyro_settle = 0  # ticks left of the settling after a gyro resynchronisation
         self._w_prev: np.ndarray | None = None
@@ -812,6 +822,8 @@ class FlightSoftware:
                 # ticks of evidence since the window last restarted (start, response, gyro)
                 self._leak_seen = self._leak_seen + 1 if len(self._leak_window) > 1 else 1
                 del self._leak_window[:-self.detector.cfg.leak_fit_ticks]
+            if self._alike_hold is not None:
+                return self._alike_step(np.asarray(dw if raw is None else raw, float), avail)
             if self._probe is not None:
                 held_det, pair, left = self._probe
                 if held_det is None:  # a probe before any crossing: the detector goes on
@@ -828,8 +840,11 @@ class FlightSoftware:
             elif out.detection is None and self.detector.latched is None:
                 self._suspect(tick, avail)
             if out.detection is not None:
-                det = self._isolate_opposite(self._isolate_alike(out.detection, avail), avail)
-                det = self._settle(det, out.detection)
+                det = self._isolate_alike(out.detection, avail,
+                                          np.asarray(dw if raw is None else raw, float))
+                if det is None:  # waiting for the ticks that tell the neighbours apart
+                    return self._settle(None, out.detection)
+                det = self._settle(self._isolate_opposite(det, avail), out.detection)
                 if det is not None and det.kind != GYRO_FAULT and det.source in (
                         "residual", "isolation") and self._held_for_confirmation(det):
                     # Latched, not answered: the next tick confirms or drops it.
@@ -879,14 +894,17 @@ class FlightSoftware:
         first = next((k for k, w in enumerate(self._window) if w[2]), 0)
         return self._window[first:]
 
-    def _isolate_alike(self, det: Detection, avail: np.ndarray) -> Detection:
+    def _isolate_alike(self, det: Detection, avail: np.ndarray,
+                       raw: np.ndarray | None = None) -> Detection | None:
         """A stuck-on crossing names the thruster the observer's residual points at most; its
         neighbours in direction (within ``_ALIKE_DEG``, their own stuck-on evidence at least
         ``_ALIKE_SHARE`` of the threshold) are judged again by the gyro's raw residual over
         the same ticks (sum of the residual vectors, projected on each unit direction), and
         the best aligned is named, when there are ``_ALIKE_MIN_TICKS`` ticks or more. The
         observer's residual says whether; the raw one says which (orel's adaptive observer
-        takes part of a stuck thrust in as flex)."""
+        takes part of a stuck thrust in as flex). With ``alike_wait_ticks``: None, and the next
+        ticks decide (``_alike_step``: each neighbour's leak fitted by ``_alike_fit``, the best
+        named once clearly better; ``raw``: this tick's raw residual)."""
         if det.kind != STUCK_ON or not self._window:
             return det
         d = self.detector
@@ -894,6 +912,16 @@ class FlightSoftware:
         cos = math.cos(math.radians(_ALIKE_DEG))
         cands = [j for j in np.flatnonzero(avail & (d.e_B @ d.e_B[i] >= cos))
                  if d.rho_off[j] >= _ALIKE_SHARE * d.thresholds_off[j]]
+        if d.cfg.alike_wait_ticks is not None:
+            # one per direction group (its members cannot be told apart), the crossing's own
+            reps = [i] + [j for j in cands if j not in d.groups[i]]
+            reps = [j for k, j in enumerate(reps)
+                    if not any(j in d.groups[r] for r in reps[:k])]
+            if len(reps) < 2:
+                return det
+            along = float(raw @ d.e_B[i]) if raw is not None else 0.0
+            self._alike_hold = (det, reps, along, 0)
+            return None
         win = self._evidence_window()
         if len(cands) < 2 or len(win) < _ALIKE_MIN_TICKS:
             return det
@@ -905,6 +933,55 @@ class FlightSoftware:
         return replace(det, thruster=best, group=group,
                        names=tuple(self.arrays.names[g] for g in group),
                        rho=float(d.rho_off[best]), source="isolation")
+
+    def _alike_fit(self, cands: list[int]) -> tuple[int, float]:
+        """Each candidate's leak (one size, not negative: ``mu_j`` times the tick's closed-valve
+        time) fitted to the raw residual (3 axes) over the evidence window by least squares;
+        returns the best candidate and how much less it leaves than the next, in noise
+        variances (a third of the dead zone, squared, per axis and tick)."""
+        win = self._evidence_window()
+        raw = np.array([w[3] for w in win])
+        closed = self.h - np.clip(np.array([w[1] for w in win]), 0.0, self.h)
+        rss = []
+        for j in cands:
+            x = closed[:, j, None] * self.arrays.mu_B_rad_s2[j][None, :]
+            xx = float(np.sum(x * x))
+            a = max(float(np.sum(x * raw)) / xx, 0.0) if xx > 0.0 else 0.0
+            rss.append(float(np.sum((raw - a * x) ** 2)))
+        order = np.argsort(rss, kind="stable")
+        var = (self.detector.dead_zone_rad_s() / 3.0) ** 2
+        return int(cands[order[0]]), (rss[order[1]] - rss[order[0]]) / max(var, 1e-300)
+
+    def _alike_named(self, det: Detection, j: int, avail: np.ndarray) -> Detection:
+        """``det`` naming ``j`` (its direction group) instead, when ``j`` is not in it."""
+        if j in det.group or j == det.thruster:
+            return det
+        d = self.detector
+        group = tuple(g for g in d.groups[j] if avail[g])
+        return replace(det, thruster=j, group=group,
+                       names=tuple(self.arrays.names[g] for g in group),
+                       rho=float(d.rho_off[j]), source="isolation")
+
+    def _alike_step(self, raw: np.ndarray, avail: np.ndarray) -> Detection | None:
+        """One tick of the wait for the neighbours of a stuck-on crossing to be told apart
+        (``DetectorCfg.alike_wait_ticks``): the tick must go on along the crossing's direction
+        as a confirmation does (else the crossing is dropped, as an unconfirmed one); the best
+        fit is named once clearly better or when the wait is over (no confirmation after it:
+        the ticks waited were one)."""
+        det, reps, along0, waited = self._alike_hold
+        self._alike_hold = None
+        e = self.detector.e_B[det.thruster]
+        along = float(raw @ e)
+        if not (along > _CONFIRM_NOISE * self._noise_along(e) and along >= 0.5 * along0):
+            self.unconfirmed_stuck_on += 1
+            return self._settle(NEITHER, None)
+        waited += 1
+        best, margin = self._alike_fit(reps)
+        if margin < _ALIKE_MARGIN and waited < int(self.detector.cfg.alike_wait_ticks):
+            self._alike_hold = (det, reps, along0, waited)
+            return None
+        named = self._alike_named(replace(det, tick=self._tick), best, avail)
+        return self._settle(self._isolate_opposite(named, avail), named)
 
     def _isolate_opposite(self, det: Detection, avail: np.ndarray,
                           decide: bool = False) -> Detection | None:
@@ -982,6 +1059,7 @@ class FlightSoftware:
             self._window = []
             self._leak_window = []
             self._probe = None
+            self._alike_hold = None
             if self.kalman is not None:
                 self.kalman.reset(self._phi_meas, self._obs.omega_hat_B_rad_s)
             self.detector.latched = None
@@ -1004,7 +1082,8 @@ class FlightSoftware:
         # restarted on the first live sample took the rest for a disturbance, and kalman_cube
         # named a thruster after 8 of 20 freezes). An unanswered thruster detection stays
         # latched (single fault); one waiting for its confirmation was the sensor.
-        if self.detector.latched is None or self._confirm is not None:
+        if self.detector.latched is None or self._confirm is not None \
+                or self._alike_hold is not None:
             self._confirm = None
             self._settle(NEITHER, None)
             self.detector.rebaseline(hold_ticks=self.detector.cfg.response_hold_ticks)
@@ -1122,6 +1201,7 @@ class FlightSoftware:
         self._leak_window = []
         self._probe = None
         self._confirm = None
+        self._alike_hold = None
         self.gyro_check.forget_pending()
         self.gyro_check.restart_noise()
         # The evidence restarts on the new configuration: effectiveness back to its last

@@ -99,7 +99,8 @@ def test_flex_share_is_bounded() -> None:
         load_vehicle("generic", {"detector": {"flex_share": 0.1}})  # accepted and ignored
 
 
-def _campaign_run(tmp_path, campaign: str, run: int, share: float | None = None):
+def _campaign_run(tmp_path, campaign: str, run: int, share: float | None = None,
+                  alike_wait: bool = True):
     from hil.campaign.expansion import expand_run, write_run
     from hil.campaign.load import load_campaign
     from hil.config import CONFIG_DIR
@@ -107,21 +108,28 @@ def _campaign_run(tmp_path, campaign: str, run: int, share: float | None = None)
 
     spec = expand_run(load_campaign(CONFIG_DIR / "campaigns" / f"{campaign}.yaml"), run)
     path = write_run(spec, tmp_path)
-    if share is not None:
+    over = ("" if share is None else f"    flex_share: {share}\n") + (
+        "" if alike_wait else "    alike_wait_ticks: null\n")
+    if over:
         text = path.read_text()
         assert "\nflight:" not in text
-        path.write_text(text + f"flight:\n  detector:\n    flex_share: {share}\n")
+        path.write_text(text + "flight:\n  detector:\n" + over)
     return spec, simulate(path)
 
 
 def test_bending_mode_ringing_after_a_burst_raises_no_alarm(tmp_path) -> None:
     """iss_rs-envelope run 265: the bending mode at 0.21 Hz (1.3x nominal) rings at 2.5e-6
     rad/s after a burst of nine thrusters; without the flex term the run names SM-pitch_II
-    stuck on at 58.4 s (the oracle: the test can fail)."""
-    _, r = _campaign_run(tmp_path, "iss_rs-envelope", 265)
+    stuck on at 58.4 s (the oracle: the test can fail). The wait for neighbouring thrusters
+    (``alike_wait_ticks``) drops that crossing too (it does not go on along the thruster):
+    the flex term is judged alone, with the wait off in both runs."""
+    _, r = _campaign_run(tmp_path, "iss_rs-envelope", 265, alike_wait=False)
     assert r.summary["detections"] == []
-    _, r0 = _campaign_run(tmp_path / "off", "iss_rs-envelope", 265, share=0.0)
+    _, r0 = _campaign_run(tmp_path / "off", "iss_rs-envelope", 265, share=0.0,
+                          alike_wait=False)
     assert [d["thruster"] for d in r0.summary["detections"]] == ["SM-pitch_II"]
+    _, r1 = _campaign_run(tmp_path / "both", "iss_rs-envelope", 265)
+    assert r1.summary["detections"] == []
 
 
 def test_a_stuck_thruster_is_still_found_at_once(tmp_path) -> None:
