@@ -234,6 +234,15 @@ class DetectorCfg(_Model):
     # Two thrusters whose unit acceleration vectors differ by less than this angle are reported
     # as a group (seed 003's stated limit of the method).
     same_direction_deg: NonNegFloat = 2.0
+    # The isolation of opposite thrusters (flight.software._isolate_opposite: a failing
+    # thruster against its opposite stuck on, fitted, or probed) pairs thrusters within this
+    # angle of each other's opposite. None: same_direction_deg (the detector's own pairs,
+    # whose burns together skip the commanded evidence, keep that angle either way).
+    isolation_opposite_deg: float | None = Field(default=None, ge=0.0, le=45.0)
+    # ... and fits the gyro's raw residual (before the observer) instead of the observer's:
+    # an adaptive observer that takes a stuck thrust in within a few ticks (iss_rs) leaves the
+    # leak fading from its residual, and the probe's ticks then read as a deficit.
+    isolation_raw: bool = False
     # Online effectiveness of each thruster (flight.detector.Effectiveness): what the onboard
     # model uses is bounded to 1 +/- effectiveness_bound (0 turns the learning off).
     # chosen: docs/design.md 10 admits +/-15 % thrust errors; 0.2 learns them with a margin.

@@ -41,6 +41,7 @@ from flight.detector import (
     Detector,
     Effectiveness,
     leak_or_deficit,
+    opposite_matrix,
 )
 from flight.fdir import Fdir
 from flight.gyro_check import GyroCheck
@@ -237,6 +238,10 @@ class FlightSoftware:
         self.detector = Detector(self.arrays.mu_B_rad_s2, dc, self.arrays.names,
                                  hold_ticks=dc.response_hold_ticks,
                                  effectiveness=self.effectiveness)
+        # the pairs the opposite isolation fits and probes (DetectorCfg.isolation_opposite_deg)
+        self._iso_opposite = (self.detector.opposite if dc.isolation_opposite_deg is None
+                              else opposite_matrix(self.detector.e_B,
+                                                   dc.isolation_opposite_deg))
         # Sensor check (flight.gyro_check): the jump level from the detector's dead zone, the
         # noise floor from the gyro's own specification (second difference of
         # the sample, three axes).
@@ -878,7 +883,7 @@ class FlightSoftware:
         fail = -d.rho_on / d.thresholds_on
         stuck = d.rho_off / d.thresholds_off
         for i in np.flatnonzero(avail & (fail >= _SUSPECT_SHARE)):
-            for j in np.flatnonzero(d.opposite[i] & avail & (stuck >= _SUSPECT_SHARE)):
+            for j in np.flatnonzero(self._iso_opposite[i] & avail & (stuck >= _SUSPECT_SHARE)):
                 a, b = float(fail[i]), float(stuck[j])
                 if abs(a - b) > _SUSPECT_TIE * max(a, b):
                     continue
@@ -1000,16 +1005,16 @@ class FlightSoftware:
         # From the first tick outside the dead zone on: the ticks before the fault say nothing
         # of it (a leak fitted over them would be judged by ticks it did not exist on).
         win = self._evidence_window()
-        dw = np.array([w[0] for w in win])
+        dw = np.array([w[3] if d.cfg.isolation_raw else w[0] for w in win])
         eff = np.array([w[1] for w in win])
         closed = self.h - np.clip(eff, 0.0, self.h)
         if det.kind == STUCK_ON:
             j = det.thruster
-            rivals = [i for i in np.flatnonzero(d.opposite[j] & avail)
+            rivals = [i for i in np.flatnonzero(self._iso_opposite[j] & avail)
                       if -d.rho_on[i] >= 0.5 * d.thresholds_on[i]]
         else:
             i0 = det.thruster
-            rivals = [j for j in np.flatnonzero(d.opposite[i0] & avail)
+            rivals = [j for j in np.flatnonzero(self._iso_opposite[i0] & avail)
                       if d.rho_off[j] >= 0.5 * d.thresholds_off[j]]
         for r in rivals:
             i, j = (int(r), det.thruster) if det.kind == STUCK_ON else (det.thruster, int(r))
