@@ -536,9 +536,8 @@ class FlightSoftware:
         self._confirm = None
         along = _sense(det) * float(np.asarray(verdict.residual)
                                     @ self.detector.e_B[det.thruster])
-        noise = self._noise_along(self.detector.e_B[det.thruster])
         if det.kind == STUCK_ON or (pred.eff_s is not None and pred.eff_s[det.thruster] > 0.0):
-            ok = along > _CONFIRM_NOISE * noise and along >= 0.5 * along0
+            ok = self._goes_on(det.thruster, along, along0)
         else:
             ok = along >= 0.0
         if verdict.fault is None and not verdict.suspect and ok:
@@ -546,6 +545,13 @@ class FlightSoftware:
         self.unconfirmed_stuck_on += 1
         self._settle(NEITHER, None)
         return None
+
+    def _goes_on(self, j: int, along: float, along0: float) -> bool:
+        """Whether a tick's raw residual ``along`` thruster ``j``'s direction goes on from the
+        crossing's ``along0``: above ``_CONFIRM_NOISE`` times the noise of the last ticks along
+        it, and at least half of the crossing's."""
+        return along > _CONFIRM_NOISE * self._noise_along(self.detector.e_B[j]) \
+            and along >= 0.5 * along0
 
     def _noise_along(self, e: np.ndarray) -> float:
         """The noise of the last ticks' raw residual along direction ``e``, from its first
@@ -900,7 +906,7 @@ class FlightSoftware:
         return self._window[first:]
 
     def _isolate_alike(self, det: Detection, avail: np.ndarray,
-                       raw: np.ndarray | None = None) -> Detection | None:
+                       raw: np.ndarray) -> Detection | None:
         """A stuck-on crossing names the thruster the observer's residual points at most; its
         neighbours in direction (within ``_ALIKE_DEG``, their own stuck-on evidence at least
         ``_ALIKE_SHARE`` of the threshold) are judged again by the gyro's raw residual over
@@ -924,20 +930,14 @@ class FlightSoftware:
                     if not any(j in d.groups[r] for r in reps[:k])]
             if len(reps) < 2:
                 return det
-            along = float(raw @ d.e_B[i]) if raw is not None else 0.0
-            self._alike_hold = (det, reps, along, 0)
+            self._alike_hold = (det, reps, float(raw @ d.e_B[i]), 0)
             return None
         win = self._evidence_window()
         if len(cands) < 2 or len(win) < _ALIKE_MIN_TICKS:
             return det
         total = np.sum([w[3] for w in win], axis=0)
         best = int(max(cands, key=lambda j: (float(total @ d.e_B[j]), j == i)))
-        if best == i or best in det.group:
-            return det
-        group = tuple(g for g in d.groups[best] if avail[g])
-        return replace(det, thruster=best, group=group,
-                       names=tuple(self.arrays.names[g] for g in group),
-                       rho=float(d.rho_off[best]), source="isolation")
+        return self._alike_named(det, best, avail)
 
     def _alike_fit(self, cands: list[int]) -> tuple[int, float]:
         """Each candidate's leak (one size, not negative: ``mu_j`` times the tick's closed-valve
@@ -975,14 +975,12 @@ class FlightSoftware:
         the ticks waited were one)."""
         det, reps, along0, waited = self._alike_hold
         self._alike_hold = None
-        e = self.detector.e_B[det.thruster]
-        along = float(raw @ e)
-        if not (along > _CONFIRM_NOISE * self._noise_along(e) and along >= 0.5 * along0):
+        if not self._goes_on(det.thruster, float(raw @ self.detector.e_B[det.thruster]), along0):
             self.unconfirmed_stuck_on += 1
             return self._settle(NEITHER, None)
         waited += 1
         best, margin = self._alike_fit(reps)
-        if margin < _ALIKE_MARGIN and waited < int(self.detector.cfg.alike_wait_ticks):
+        if margin < _ALIKE_MARGIN and waited < self.detector.cfg.alike_wait_ticks:
             self._alike_hold = (det, reps, along0, waited)
             return None
         named = self._alike_named(replace(det, tick=self._tick), best, avail)
