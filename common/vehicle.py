@@ -342,6 +342,13 @@ class DetectorCfg(_Model):
     # window's), for ``leak_fit_onset_hold`` ticks in a row.
     leak_fit_onset_min: float = Field(default=0.3, gt=0.0, lt=1.0)
     leak_fit_onset_hold: int = Field(default=2, ge=1, le=1000)
+    # The leak-fit test also fits a longer window of this many ticks (a small leak gives a
+    # few noise levels a tick: its fit's standard error falls as the square root of the
+    # ticks), on the ticks with no thruster burning, from the best onset with half the window
+    # or more after it, with the noise level the fit measures; the same leak and sigma limits,
+    # and rivals judged by a margin of noise variances (flight.software._LONG_MARGIN), not a
+    # ratio. None: off.
+    leak_fit_long_ticks: int | None = Field(default=None, ge=10, le=5000)
     # A stuck-on crossing whose neighbours in direction (flight.software._ALIKE_DEG) are
     # crossing too waits up to this many ticks for the raw residual to tell them apart: each
     # one's leak is fitted over the evidence ticks, and the best is named once it leaves at

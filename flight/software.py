@@ -106,6 +106,9 @@ _LEAK_RIVAL_RSS = 0.7
 # at its prior) fitted as a leak that began inside the first window (iss_rs-envelope: 2 of 500
 # runs named a stuck-on 5.4-5.6 s into the run, the only two the onset fit added).
 _ONSET_AFTER = 2
+# The long leak-fit test names a leak that leaves this many noise variances less than the
+# best other explanation.
+_LONG_MARGIN = 9.0
 # What the isolation returns when neither hypothesis of a pair holds (_isolate_opposite).
 NEITHER = Detection(tick=-1, thruster=-1, kind="none", group=(), names=(), rho=0.0)
 # The probe starts before a crossing when a failing thruster's and its opposite's stuck-on
@@ -273,6 +276,7 @@ class FlightSoftware:
         # (detection held back, the pair left out of the allocation, ticks left) while probing
         self._probe: tuple[Detection | None, tuple[int, int], int] | None = None
         self._onset_streak = (-1, 0)  # the leak-fit onset test's (thruster, ticks in a row)
+        self._long_streak = (-1, 0)  # the long leak-fit test's (thruster, ticks in a row)
         self._leak_seen = 0  # ticks in the leak-fit window since it last restarted
         self._probed: dict[tuple[int, int], int] = {}
         # (stuck-on waiting for the next tick, its raw residual along the thruster) and the
@@ -580,11 +584,12 @@ class FlightSoftware:
         """Leak-fit test (``DetectorCfg.leak_fit_*``): the stuck-on detection it makes on this
         tick, or None."""
         dc = self.detector.cfg
-        win = self._leak_window
-        if len(win) < dc.leak_fit_ticks:
+        if len(self._leak_window) < dc.leak_fit_ticks:
             self._leak_streak = (-1, 0)
             self._onset_streak = (-1, 0)
+            self._long_streak = (-1, 0)
             return None
+        win = self._leak_window[-dc.leak_fit_ticks:]
         avail = self.fdir.available
         sw = 1.0 / np.sqrt(np.array([w[2] for w in win]))     # (W,) 1 / sigma per tick
         raw = np.array([w[0] for w in win]) * sw[:, None]      # (W, 3) in sigmas
@@ -594,12 +599,62 @@ class FlightSoftware:
         if det is None and dc.leak_fit_onset_ticks is not None \
                 and self._leak_seen >= _ONSET_AFTER * dc.leak_fit_ticks:
             det = self._leak_fit_onset(raw, eff, closed, sw, avail)
+        if det is None and dc.leak_fit_long_ticks is not None:
+            det = self._leak_fit_long(avail)
         return det
 
-    def _leak_fit_whole(self, raw: np.ndarray, eff: np.ndarray, closed: np.ndarray,
-                        sw: np.ndarray, avail: np.ndarray) -> Detection | None:
-        """The leak-fit test over the whole window (a leak there from its first tick)."""
+    def _leak_fit_long(self, avail: np.ndarray) -> Detection | None:
+        """The leak-fit test over the long window (``DetectorCfg.leak_fit_long_ticks``): a small
+        leak, a few noise levels a tick, fitted over many ticks, from the onset tick that fits
+        best (with at least half the window's ticks from it: a thruster that burnt early in
+        the window and not since would fit a later onset by its pattern alone, and half a
+        period of a slow flex mode's ringing, 4.4 s at 0.11 Hz, fits a short onset), on the
+        ticks with no thruster burning only (so no burning thruster's deficit or excess is a
+        rival). Its rivals, the other direction groups' leaks from their own best onsets, must
+        leave ``_LONG_MARGIN`` noise variances more than it: over a long window a ratio would
+        ask more of the direction than neighbours have."""
         dc = self.detector.cfg
+        win = self._leak_window
+        if len(win) < dc.leak_fit_long_ticks:
+            self._long_streak = (-1, 0)
+            return None
+        mu = self.arrays.mu_B_rad_s2
+        m = int(dc.leak_fit_long_ticks) // 2
+        eff = np.array([w[1] for w in win])
+        # Only the ticks with no thruster burning (seed 002): on the others what the learning
+        # does not know yet of the burns stays in the residual for many ticks, a tenth of a
+        # thrust or more, as a small leak does
+        quiet = ~(eff > 0.0).any(axis=1)
+        sw = np.where(quiet, 1.0 / np.sqrt(np.array([w[2] for w in win])), 0.0)
+        raw = np.array([w[0] for w in win]) * sw[:, None]
+        closed = (self.h - np.clip(eff, 0.0, self.h)) * sw[:, None]
+        rss, c, xx, _ = _onset_fits(raw, closed * avail.astype(float)[None, :], mu, m)
+        if not np.isfinite(rss).any():
+            self._long_streak = (-1, 0)
+            return None
+        j = int(np.argmin(rss))
+        group = self.detector.groups[j]
+        others = np.array([x not in group for x in range(len(rss))])
+        rival = float(rss[others].min()) if others.any() else math.inf
+        # The noise level measured by the fit itself (its residual's variance in units of the
+        # assumed one): over a long window the assumed level (a third of the dead zone, and
+        # what the learning does not know of the burns) is a bound, several times the noise.
+        s2 = float(rss[j]) / max(3 * int(quiet.sum()) - 2, 1)
+        se = math.sqrt(s2 / float(xx[j]))
+        ok = (c[j] >= dc.leak_fit_min and c[j] >= dc.leak_fit_sigma * se
+              and rival - float(rss[j]) >= _LONG_MARGIN * s2)
+        streak = self._long_streak[1] + 1 if ok and self._long_streak[0] == j else int(ok)
+        self._long_streak = (j if ok else -1, streak)
+        if not ok or streak < dc.leak_fit_hold:
+            return None
+        self._long_streak = (-1, 0)
+        found = self._leak_found(j, float(c[j]), avail)
+        return self._settle(found, found)
+
+    def _whole_fits(self, raw: np.ndarray, closed: np.ndarray,
+                    avail: np.ndarray) -> list[tuple[float, float, float, int]]:
+        """Each available thruster's leak fitted to the window's raw residual (positive fits
+        only): ``(rss, leak, standard error, thruster)``, best first."""
         mu = self.arrays.mu_B_rad_s2
         yy = float((raw * raw).sum())
         fits = []
@@ -609,24 +664,35 @@ class FlightSoftware:
             if xx <= 0.0 or xy <= 0.0:
                 continue
             rss = max(yy - xy * xy / xx, 0.0)
-            c = xy / xx
             se = math.sqrt(max(rss / max(raw.size - 1, 1), 1.0) / xx)
-            fits.append((rss, c, se, int(j)))
+            fits.append((rss, xy / xx, se, int(j)))
+        fits.sort()
+        return fits
+
+    def _deficit_rss(self, raw: np.ndarray, eff: np.ndarray, sw: np.ndarray,
+                     avail: np.ndarray) -> list[float]:
+        """What each thruster that burnt in the window leaves when its deficit explains the
+        raw residual (a degraded thruster's rival explanation of a residual against it)."""
+        mu = self.arrays.mu_B_rad_s2
+        k = self.effectiveness.k
+        return [_rss_one(raw, -(k[i] * eff[:, i] * sw)[:, None] * mu[i][None, :])
+                for i in np.flatnonzero(avail & (eff > 0.0).any(axis=0))]
+
+    def _leak_fit_whole(self, raw: np.ndarray, eff: np.ndarray, closed: np.ndarray,
+                        sw: np.ndarray, avail: np.ndarray) -> Detection | None:
+        """The leak-fit test over the whole window (a leak there from its first tick)."""
+        dc = self.detector.cfg
+        fits = self._whole_fits(raw, closed, avail)
         if not fits:
             self._leak_streak = (-1, 0)
             return None
-        fits.sort()
         rss, c, se, j = fits[0]
         group = self.detector.groups[j]
-        rival = next((f[0] for f in fits[1:] if f[3] not in group), None)
         # A deficit of a thruster that burnt (a degraded one) explains a residual against it
-        k = self.effectiveness.k
-        for i in np.flatnonzero(avail & (eff > 0.0).any(axis=0)):
-            x = -(k[i] * eff[:, i] * sw)[:, None] * mu[i][None, :]
-            rd = _rss_one(raw, x)
-            rival = rd if rival is None else min(rival, rd)
+        rival = min([f[0] for f in fits[1:] if f[3] not in group]
+                    + self._deficit_rss(raw, eff, sw, avail), default=math.inf)
         ok = (c >= dc.leak_fit_min and c >= dc.leak_fit_sigma * se
-              and (rival is None or rss < _LEAK_RIVAL_RSS * rival))
+              and rss < _LEAK_RIVAL_RSS * rival)
         streak = self._leak_streak[1] + 1 if ok and self._leak_streak[0] == j else int(ok)
         self._leak_streak = (j if ok else -1, streak)
         if not ok or streak < dc.leak_fit_hold:
@@ -709,7 +775,7 @@ class FlightSoftware:
         or i degraded or failing with the thrust fraction the deficit's fit leaves. ``NEITHER``
         when neither fits, or the deficit is within the admitted thrust errors."""
         i, j = pair
-        win = self._leak_window
+        win = self._leak_window[-self.detector.cfg.leak_fit_ticks:]
         sw = 1.0 / np.sqrt(np.array([w[2] for w in win]))
         raw = np.array([w[0] for w in win]) * sw[:, None]
         eff = np.array([w[1] for w in win])
@@ -832,7 +898,8 @@ class FlightSoftware:
                 self._leak_window.append((self._window[-1][3], self._window[-1][1], var))
                 # ticks of evidence since the window last restarted (start, response, gyro)
                 self._leak_seen = self._leak_seen + 1 if len(self._leak_window) > 1 else 1
-                del self._leak_window[:-self.detector.cfg.leak_fit_ticks]
+                dc = self.detector.cfg
+                del self._leak_window[:-max(dc.leak_fit_ticks, dc.leak_fit_long_ticks or 0)]
             if self._alike_hold is not None:
                 return self._alike_step(np.asarray(dw if raw is None else raw, float), avail)
             if self._probe is not None:
