@@ -302,6 +302,10 @@ class DetectorCfg(_Model):
         if self.confirm_stuck_on == "noisy" and self.gyro_noise_all_ticks is None:
             raise _FieldError("confirm_stuck_on", "true or false without gyro_noise_all_ticks "
                               "(noisy reads its level)", self.confirm_stuck_on)
+        for name in ("leak_fit_onset_ticks", "leak_fit_long_ticks"):
+            if getattr(self, name) is not None and self.leak_fit_min is None:
+                raise _FieldError(name, "none without leak_fit_min (it extends the leak-fit "
+                                  "test)", getattr(self, name))
         if self.learn_latency_ms > 0.0 and self.effectiveness_bound <= 0.0:
             raise _FieldError("learn_latency_ms", "0 when effectiveness_bound is 0 (the latency "
                               "is learnt with the effectiveness)", self.learn_latency_ms)

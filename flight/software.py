@@ -651,10 +651,10 @@ class FlightSoftware:
         found = self._leak_found(j, float(c[j]), avail)
         return self._settle(found, found)
 
-    def _whole_fits(self, raw: np.ndarray, closed: np.ndarray,
-                    avail: np.ndarray) -> list[tuple[float, float, float, int]]:
-        """Each available thruster's leak fitted to the window's raw residual (positive fits
-        only): ``(rss, leak, standard error, thruster)``, best first."""
+    def _leak_fit_whole(self, raw: np.ndarray, eff: np.ndarray, closed: np.ndarray,
+                        sw: np.ndarray, avail: np.ndarray) -> Detection | None:
+        """The leak-fit test over the whole window (a leak there from its first tick)."""
+        dc = self.detector.cfg
         mu = self.arrays.mu_B_rad_s2
         yy = float((raw * raw).sum())
         fits = []
@@ -664,35 +664,24 @@ class FlightSoftware:
             if xx <= 0.0 or xy <= 0.0:
                 continue
             rss = max(yy - xy * xy / xx, 0.0)
+            c = xy / xx
             se = math.sqrt(max(rss / max(raw.size - 1, 1), 1.0) / xx)
-            fits.append((rss, xy / xx, se, int(j)))
-        fits.sort()
-        return fits
-
-    def _deficit_rss(self, raw: np.ndarray, eff: np.ndarray, sw: np.ndarray,
-                     avail: np.ndarray) -> list[float]:
-        """What each thruster that burnt in the window leaves when its deficit explains the
-        raw residual (a degraded thruster's rival explanation of a residual against it)."""
-        mu = self.arrays.mu_B_rad_s2
-        k = self.effectiveness.k
-        return [_rss_one(raw, -(k[i] * eff[:, i] * sw)[:, None] * mu[i][None, :])
-                for i in np.flatnonzero(avail & (eff > 0.0).any(axis=0))]
-
-    def _leak_fit_whole(self, raw: np.ndarray, eff: np.ndarray, closed: np.ndarray,
-                        sw: np.ndarray, avail: np.ndarray) -> Detection | None:
-        """The leak-fit test over the whole window (a leak there from its first tick)."""
-        dc = self.detector.cfg
-        fits = self._whole_fits(raw, closed, avail)
+            fits.append((rss, c, se, int(j)))
         if not fits:
             self._leak_streak = (-1, 0)
             return None
+        fits.sort()
         rss, c, se, j = fits[0]
         group = self.detector.groups[j]
+        rival = next((f[0] for f in fits[1:] if f[3] not in group), None)
         # A deficit of a thruster that burnt (a degraded one) explains a residual against it
-        rival = min([f[0] for f in fits[1:] if f[3] not in group]
-                    + self._deficit_rss(raw, eff, sw, avail), default=math.inf)
+        k = self.effectiveness.k
+        for i in np.flatnonzero(avail & (eff > 0.0).any(axis=0)):
+            x = -(k[i] * eff[:, i] * sw)[:, None] * mu[i][None, :]
+            rd = _rss_one(raw, x)
+            rival = rd if rival is None else min(rival, rd)
         ok = (c >= dc.leak_fit_min and c >= dc.leak_fit_sigma * se
-              and rss < _LEAK_RIVAL_RSS * rival)
+              and (rival is None or rss < _LEAK_RIVAL_RSS * rival))
         streak = self._leak_streak[1] + 1 if ok and self._leak_streak[0] == j else int(ok)
         self._leak_streak = (j if ok else -1, streak)
         if not ok or streak < dc.leak_fit_hold:

@@ -94,3 +94,12 @@ def test_a_15_percent_leak_in_a_slew_is_found_only_by_the_long_test(tmp_path: Pa
     _, off = campaign_run(tmp_path / "off", "iss_rs-faults", 108,
                           {"leak_fit_long_ticks": "null"})
     assert not off.summary["detections"]
+
+
+@pytest.mark.parametrize("name", ["leak_fit_long_ticks", "leak_fit_onset_ticks"])
+def test_an_extension_of_the_leak_fit_needs_the_leak_fit(name: str) -> None:
+    from common.errors import ConfigError
+
+    # generic has no leak-fit test: the option would be accepted and ignored
+    with pytest.raises(ConfigError, match=rf"{name}: expected none without leak_fit_min.*got 50"):
+        load_vehicle("generic", {"detector": {name: 50}})
