@@ -306,6 +306,12 @@ class DetectorCfg(_Model):
             if getattr(self, name) is not None and self.leak_fit_min is None:
                 raise _FieldError(name, "none without leak_fit_min (it extends the leak-fit "
                                   "test)", getattr(self, name))
+        if not self.leak_fit_short and self.leak_fit_long_ticks is None:
+            raise _FieldError("leak_fit_short", "true without leak_fit_long_ticks (false leaves "
+                              "the long fit alone)", self.leak_fit_short)
+        if not self.leak_fit_short and self.leak_fit_onset_ticks is not None:
+            raise _FieldError("leak_fit_onset_ticks", "none with leak_fit_short false (the onset "
+                              "fit is the short window's)", self.leak_fit_onset_ticks)
         if self.learn_latency_ms > 0.0 and self.effectiveness_bound <= 0.0:
             raise _FieldError("learn_latency_ms", "0 when effectiveness_bound is 0 (the latency "
                               "is learnt with the effectiveness)", self.learn_latency_ms)
@@ -353,6 +359,12 @@ class DetectorCfg(_Model):
     # and rivals judged by a margin of noise variances (flight.software._LONG_MARGIN), not a
     # ratio. None: off.
     leak_fit_long_ticks: int | None = Field(default=None, ge=10, le=5000)
+    # The fits over the last ``leak_fit_ticks`` ticks (the whole window's and the onset's).
+    # false: the long fit alone (needs leak_fit_long_ticks): on orel, whose thrusters fight
+    # each other over a few ticks, the short window took a fighter's error for a leak or a
+    # deficit (stuck-on thrusters' fighters named degraded first, alarms before the fault),
+    # where the long fit on the quiet ticks does not.
+    leak_fit_short: bool = True
     # A stuck-on crossing whose neighbours in direction (flight.software._ALIKE_DEG) are
     # crossing too waits up to this many ticks for the raw residual to tell them apart: each
     # one's leak is fitted over the evidence ticks, and the best is named once it leaves at

@@ -595,7 +595,7 @@ class FlightSoftware:
         raw = np.array([w[0] for w in win]) * sw[:, None]      # (W, 3) in sigmas
         eff = np.array([w[1] for w in win])                    # (W, N)
         closed = (self.h - np.clip(eff, 0.0, self.h)) * sw[:, None]
-        det = self._leak_fit_whole(raw, eff, closed, sw, avail)
+        det = self._leak_fit_whole(raw, eff, closed, sw, avail) if dc.leak_fit_short else None
         if det is None and dc.leak_fit_onset_ticks is not None \
                 and self._leak_seen >= _ONSET_AFTER * dc.leak_fit_ticks:
             det = self._leak_fit_onset(raw, eff, closed, sw, avail)

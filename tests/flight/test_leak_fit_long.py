@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flight.detector import STUCK_ON
+from flight.detector import STUCK_ON, Detection
 from flight.software import FlightSoftware
 from hil.config import AttitudeCfg, load_vehicle
 from tests.flight.campaign_run import campaign_run
@@ -103,3 +103,58 @@ def test_an_extension_of_the_leak_fit_needs_the_leak_fit(name: str) -> None:
     # generic has no leak-fit test: the option would be accepted and ignored
     with pytest.raises(ConfigError, match=rf"{name}: expected none without leak_fit_min.*got 50"):
         load_vehicle("generic", {"detector": {name: 50}})
+
+
+def test_the_long_fit_alone_needs_it() -> None:
+    from common.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"leak_fit_short: expected true without "
+                                          r"leak_fit_long_ticks.*got False"):
+        load_vehicle("generic", {"detector": {"leak_fit_min": 0.08, "leak_fit_short": False}})
+    with pytest.raises(ConfigError, match=r"leak_fit_onset_ticks: expected none with "
+                                          r"leak_fit_short false.*got 3"):
+        load_vehicle("generic", {"detector": {"leak_fit_min": 0.08, "leak_fit_short": False,
+                                              "leak_fit_long_ticks": 100,
+                                              "leak_fit_onset_ticks": 3}})
+
+
+@pytest.mark.parametrize("short", [True, False])
+def test_without_the_short_fit_only_the_long_window_names(short: bool) -> None:
+    # A 50 % leak of an orel aft thruster over the short window's 25 quiet ticks: the
+    # whole-window fit names it once it has held; with leak_fit_short false nothing is named
+    # before the long window is full, and then the long fit names it.
+    fs = FlightSoftware(load_vehicle("orel", {"detector": {"leak_fit_short": short}}),
+                        initial_attitude=AttitudeCfg(axis=(1, 0, 0), angle_deg=0.0))
+    dc = fs.detector.cfg
+    assert dc.leak_fit_long_ticks is not None
+    rng = np.random.default_rng(7)
+    j = list(fs.arrays.names).index("1")
+    mu = fs.arrays.mu_B_rad_s2
+    var = (fs.detector.dead_zone_rad_s() / 3.0) ** 2
+    noise = 5e-6
+
+    def tick() -> Detection | None:
+        raw = noise * rng.standard_normal(3) + 0.5 * H * mu[j]
+        fs._leak_window.append((raw, np.zeros(fs.n), var))
+        del fs._leak_window[:-dc.leak_fit_long_ticks]
+        return fs._leak_fit()
+
+    named = [k for k in range(dc.leak_fit_long_ticks + dc.leak_fit_hold) if tick() is not None]
+    # the window full at index ticks - 1, held from there for leak_fit_hold ticks
+    first = (dc.leak_fit_ticks if short else dc.leak_fit_long_ticks) + dc.leak_fit_hold - 2
+    assert named and named[0] == first
+
+
+def test_a_15_percent_leak_of_an_orel_roll_thruster_in_a_hold(tmp_path: Path) -> None:
+    # orel-leaks run 22: thruster 23 (middle belt, mostly roll) stuck on at 15 % from 46.5 s
+    # of a hold, about 3e-5 rad/s a tick against a 1e-4 dead zone: the long fit alone names
+    # it; without the leak-fit test the run names nothing
+    spec, sim = campaign_run(tmp_path / "on", "orel-leaks", 22)
+    assert spec.fault["thruster"] == "23" and spec.fault["fraction"] == 0.15
+    dets = sim.summary["detections"]
+    assert [(d["thruster"], d["type"]) for d in dets] == [("23", STUCK_ON)]
+    assert dets[0]["t_s"] > spec.fault["t_s"]
+    _, off = campaign_run(tmp_path / "off", "orel-leaks", 22,
+                          {"leak_fit_min": "null", "leak_fit_long_ticks": "null",
+                           "leak_fit_short": "true"})
+    assert not off.summary["detections"]
