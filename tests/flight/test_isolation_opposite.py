@@ -50,6 +50,21 @@ def test_a_stuck_thruster_fought_by_its_near_opposite_is_named(tmp_path: Path) -
     assert off.summary["detections"][0]["thruster"] == "P2+pitch_II"
 
 
+def test_a_failing_orel_thruster_is_not_named_as_its_near_opposite_stuck(
+        tmp_path: Path) -> None:
+    """orel-fails run 198: thruster 10 fails to fire at 3.1 s and is commanded at once; 13 is
+    3.5 deg from its opposite (the detector's 2-deg test does not pair them). Named right
+    within 2 s of the fault; with the detector's pairs, 13 stuck on."""
+    spec, sim = campaign_run(tmp_path, "orel-fails", 198)
+    assert spec.fault["kind"] == "fail_to_fire"
+    d = sim.summary["detections"][0]
+    assert d["thruster"] == spec.fault["thruster"] == "10" and d["type"] == "fail_to_fire"
+    assert d["t_s"] - spec.fault["t_s"] < 2.0
+    _, off = campaign_run(tmp_path / "off", "orel-fails", 198, {"isolation_opposite_deg": "null"})
+    d = off.summary["detections"][0]
+    assert (d["thruster"], d["type"]) == ("13", STUCK_ON)
+
+
 def test_off_by_default() -> None:
     dc = load_vehicle("generic").flight.detector
     assert dc.isolation_opposite_deg is None and not dc.isolation_raw
