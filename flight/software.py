@@ -589,13 +589,15 @@ class FlightSoftware:
             self._onset_streak = (-1, 0)
             self._long_streak = (-1, 0)
             return None
-        win = self._leak_window[-dc.leak_fit_ticks:]
         avail = self.fdir.available
+        if not dc.leak_fit_short:  # the long fit alone (no onset fit either: validated)
+            return self._leak_fit_long(avail)
+        win = self._leak_window[-dc.leak_fit_ticks:]
         sw = 1.0 / np.sqrt(np.array([w[2] for w in win]))     # (W,) 1 / sigma per tick
         raw = np.array([w[0] for w in win]) * sw[:, None]      # (W, 3) in sigmas
         eff = np.array([w[1] for w in win])                    # (W, N)
         closed = (self.h - np.clip(eff, 0.0, self.h)) * sw[:, None]
-        det = self._leak_fit_whole(raw, eff, closed, sw, avail) if dc.leak_fit_short else None
+        det = self._leak_fit_whole(raw, eff, closed, sw, avail)
         if det is None and dc.leak_fit_onset_ticks is not None \
                 and self._leak_seen >= _ONSET_AFTER * dc.leak_fit_ticks:
             det = self._leak_fit_onset(raw, eff, closed, sw, avail)
