@@ -161,6 +161,15 @@ _FIT_WHITE = 0.2
 # 0.92 Hz put 6.0e-4 rad/s into the raw residual with 0.26e-4 in the innovation (4 %), and its
 # swing back read as a bias step in runs 70 and 187; a sensor's jump is all innovation (100 %).
 _INNOVATION_SHARE = 0.5
+# A held jump is named a bias step only out of a calm: the observer's innovation (the raw
+# residual without one) along the jump over the _CALM_TICKS ticks before it, root mean square,
+# under return_fraction of the jump. A sensor's step comes out of whatever the residual was
+# (thrust errors, noise: on kalman_cube's limit cycle about 40e-6 rad/s a tick); a thruster
+# stuck on while it is commanded leaks only in the closed part of each tick, so its residual
+# comes and goes along its direction with the burns (kalman_cube-leaks run 10: Z+ at 15 %,
+# 0.1-1.5e-3 rad/s along z for 15 ticks, then a 9.0e-4 rad/s tick followed by 1.7e-4 was
+# named a bias step 3.5 s after the onset).
+_CALM_TICKS = 10
 
 
 @dataclass(frozen=True)
@@ -249,6 +258,7 @@ class GyroCheck:
         self._fit_seen = 0  # evidence ticks since the start or the last restart
         self.fit_sigma_rad_s = 0.0  # the largest white axis's noise the fit test reads
         self.fit_lag2 = np.zeros(3)  # per axis, the fit's last lag-one level (rad/s)^2
+        self._calm: list[np.ndarray] = []  # the last ticks' innovation (raw residual without)
 
     def forget_pending(self) -> None:
         """The flight changed the dynamics itself (an FDIR response): a held jump is not to be
@@ -257,6 +267,7 @@ class GyroCheck:
         self._last_fail = None
         self._run = False
         self._settle = False
+        self._calm = []
 
     def restart_noise(self) -> None:
         """The flight changed the dynamics itself (an FDIR response): the quiet ticks' level
@@ -323,6 +334,9 @@ class GyroCheck:
         the same layout on every tick."""
         self._innovation = None if innovation is None else np.asarray(innovation, float)
         v = self._step(y, predicted_change, thrust_abs, increments)
+        self._calm.append(np.asarray(v.residual if innovation is None else innovation,
+                                     dtype=float).copy())
+        del self._calm[:-_CALM_TICKS - 1]
         self._u_prev = None if increments is None else np.array(increments, dtype=float)
         if self.lag_noise2 is not None:
             v = self._lag_noise(v)
@@ -458,7 +472,7 @@ class GyroCheck:
                 kind = SPIKE  # one bad sample of a rate gyro: +s, -s
             elif float(np.linalg.norm(r + 2.0 * p)) < 2.0 * self.return_fraction * pn:
                 kind, settle = SPIKE, True  # one bad counter reading: +s, -2s, +s
-            elif float(np.linalg.norm(r)) < self.return_fraction * pn:
+            elif float(np.linalg.norm(r)) < self.return_fraction * pn and self._calm_before(p):
                 kind = BIAS_STEP
             if kind is not None:
                 self._settle = settle
@@ -493,6 +507,17 @@ class GyroCheck:
         v = self._noise(r if self._innovation is None else self._innovation, thrust_abs)
         v = replace(v, residual=r)
         return replace(v, drop_previous=True) if dropped else v
+
+    def _calm_before(self, p: np.ndarray) -> bool:
+        """Was the residual calm along the held jump ``p`` before it (``_CALM_TICKS``)? The
+        ticks before the held one (the last kept is the held tick itself), root mean square
+        along ``p`` under ``return_fraction`` of ``|p|``; True with no tick before."""
+        before = self._calm[:-1]
+        pn = float(np.linalg.norm(p))
+        if not before or pn == 0.0:
+            return True
+        along = np.asarray(before) @ (p / pn)
+        return float(np.sqrt(np.mean(along * along))) < self.return_fraction * pn
 
     def _observer_surprised(self, r: np.ndarray) -> bool:
         """Did the observer's one-step prediction (flex included) miss the jump ``r`` too? Its

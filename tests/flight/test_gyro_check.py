@@ -103,6 +103,34 @@ def test_a_step_while_the_thruster_that_could_explain_it_fires_right_is_a_bias_s
     assert not v[40].suspect and v[41].taint_previous  # evidence at once, then taken back
 
 
+def test_a_leak_coming_and_going_with_the_burns_is_not_a_bias_step() -> None:
+    """A thruster stuck on while it is commanded leaks only in the closed part of each tick:
+    2e-3 rad/s per tick along x times the closed share, 0.3-0.8 for 20 ticks, then a whole
+    tick closed (2e-3) followed by a tick it burns almost throughout (2e-4, under 0.3 of the
+    jump): the pattern of a bias step, but out of a residual that was anything but calm along
+    it (kalman_cube-leaks run 10). Out of calm ticks the same two ticks are a bias step."""
+    closed = [0.7, 0.4, 0.3, 0.6, 0.35, 0.8, 0.45, 0.3, 0.6, 0.4] * 2 + [1.0, 0.1, 0.3]
+    rng = np.random.default_rng(7)
+    w = np.full(3, 1e-4)
+    ys = []
+    for k in range(60):
+        if 10 <= k < 10 + len(closed):
+            w = w + np.array([2e-3 * closed[k - 10], 0.0, 0.0])
+        ys.append(w + NOISE_STD * rng.standard_normal(3))
+    v = _feed(_check(), ys)
+    assert not any(x.fault for x in v)
+    jump = 10 + 20  # the whole closed tick
+    assert v[jump].hold and v[jump + 1].drop_previous  # held, then not evidence
+    # the same two ticks out of calm: a bias step (the naming is judged on the tick after)
+    calm = list(_quiet(60))
+    w = np.full(3, 1e-4)
+    for k in range(30, 60):
+        w = w + np.array([2e-3 * ([1.0, 0.1] + [0.0] * 28)[k - 30], 0.0, 0.0])
+        calm[k] = calm[k] + w - 1e-4
+    v = _feed(_check(), calm)
+    assert [(k, x.fault) for k, x in enumerate(v) if x.fault] == [(31, BIAS_STEP)]
+
+
 def test_a_stuck_thruster_is_held_one_tick_then_committed() -> None:
     """A stuck-on thruster adds 2e-3 rad/s per tick from tick 10: the first jump is held (it
     could be a sensor step), every later one is dynamics and goes to the detector at once."""
