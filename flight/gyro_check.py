@@ -23,7 +23,8 @@ signatures no single thruster fault can produce are recognised:
   along it on every tick it is commanded;
 * **bias step**: the same unexplained jump followed by nothing (``|r(n+1)| < return_fraction
   |r(n)|``): the output moved, the dynamics did not. A stuck-on thruster repeats its jump tick
-  after tick, so it is never a step;
+  after tick, so it is never a step, except while it is commanded: it then leaks in the closed
+  part of each tick only, so a step is named only out of a calm (``_CALM_TICKS``);
 * a held jump is named (spike or bias step) only if the observer's one-step prediction (flex
   included) missed it too, ``_observer_surprised``: a sensor's jump is all innovation, a flex
   mode ringing off the rigid prediction is in ``r`` but not in the innovation of an observer
