@@ -335,8 +335,7 @@ class GyroCheck:
         the same layout on every tick."""
         self._innovation = None if innovation is None else np.asarray(innovation, float)
         v = self._step(y, predicted_change, thrust_abs, increments)
-        self._calm.append(np.asarray(v.residual if innovation is None else innovation,
-                                     dtype=float).copy())
+        self._calm.append(np.array(v.residual if self._innovation is None else self._innovation))
         del self._calm[:-_CALM_TICKS - 1]
         self._u_prev = None if increments is None else np.array(increments, dtype=float)
         if self.lag_noise2 is not None:

@@ -122,11 +122,9 @@ def test_a_leak_coming_and_going_with_the_burns_is_not_a_bias_step() -> None:
     jump = 10 + 20  # the whole closed tick
     assert v[jump].hold and v[jump + 1].drop_previous  # held, then not evidence
     # the same two ticks out of calm: a bias step (the naming is judged on the tick after)
-    calm = list(_quiet(60))
-    w = np.full(3, 1e-4)
-    for k in range(30, 60):
-        w = w + np.array([2e-3 * ([1.0, 0.1] + [0.0] * 28)[k - 30], 0.0, 0.0])
-        calm[k] = calm[k] + w - 1e-4
+    calm = _quiet(60)
+    calm[30:, 0] += 2e-3  # the whole closed tick
+    calm[31:, 0] += 2e-4  # the tick it burns almost throughout, then nothing
     v = _feed(_check(), calm)
     assert [(k, x.fault) for k, x in enumerate(v) if x.fault] == [(31, BIAS_STEP)]
 
