@@ -132,29 +132,37 @@ _SHARE_K, _SHARE_WARMUP, _SHARE_FORGET, _SHARE_CAP = 6.0, 25, 0.98, 3.0
 # _LAG_AGAIN of the level for a whole window (the window's mean of products fluctuates by
 # half its value on white noise: a dwell, not one tick below).
 _LAG_WINDOW, _LAG_WHITE, _LAG_TRIM, _LAG_AGAIN = 30, 0.35, 2, 0.25
-# Noise test on every tick through a fit of the thrusters' errors (``fit_noise_rad_s``): per
-# axis, the raw residual of the last _FIT_WINDOW evidence ticks (at least _FIT_DOF more than
-# the fit's unknowns) is fitted by least squares on the tick's regressors (given by the
-# flight: each thruster's learnt equivalent burn, its change per second of command latency
-# and its partial burns as a pulse's head and tail; a thruster's scale, direction and timing
-# errors are fixed over a window, so their share of the residual is a fixed linear function
-# of them) and a constant; the leftover's lag-one autocovariance over consecutive ticks, per
-# degree of freedom, is the sensor's white noise variance (it enters differenced) with the
-# thrusters' systematic errors taken out. Named when above the level on an axis whose
-# leftover's lag-one correlation is at most -_FIT_WHITE (noise alone: -0.5; the controller's
-# reaction to a noisier sensor adds per-tick errors of its own, which lower it: -0.27 to
-# -0.49 under 7e-5 rad/s of noise on kalman_cube) for _FIT_TICKS ticks in a row, and suspect
-# from then (not before: a one-tick jump lifts the window's level for a few ticks, and the
-# jump tests must see them untouched) until no axis has read above _FIT_AGAIN of the level
-# (squared) for a whole window. Judged only once _FIT_WARMUP windows of ticks have gone by
-# since the start or a response: a window holding the first pulses after a coast, before the
-# latency and the effectiveness are learnt, read up to 7 times the sensor's noise
-# (kalman_cube-hold600 run 2, ticks 37-39). Measured on kalman_cube, offline on the recorded
-# residuals (141 kalman_cube-envelope and 20 kalman_cube-hold600 runs fault-free, 20
-# kalman_cube-gyro noise increases of 3-10 times the sensor's noise): the ten-tick minimum of
-# the level peaked at 2.1 times the gyro's noise_std fault-free, 3.0 in one 600 s hold (run
-# 16: a limit cycle changing pattern); without the heads and tails 5.6 (run 19: opposite
-# thrusters' tails sharing ticks); the noise increases crossed 3.5 times it in 19 of 20 runs.
+# Noise test on every tick through a fit of the thrusters' errors (``fit_noise_rad_s``): per axis,
+# the raw residual of the last _FIT_WINDOW evidence ticks (at least _FIT_DOF more than the fit's
+# unknowns) is fitted by least squares on the tick's regressors (given by the flight: each
+# thruster's learnt equivalent burn, its change per second of command latency and its partial
+# burns as a pulse's head and tail; a thruster's scale, direction and timing errors are fixed over
+# a window, so their share of the residual is a fixed linear function of them) and a constant; the
+# leftover's lag-one autocovariance over consecutive ticks, per degree of freedom, is the sensor's
+# white noise variance (it enters differenced) with the thrusters' systematic errors taken out.
+# Named when above the level on an axis whose leftover's lag-one correlation is at most
+# -_FIT_WHITE (noise alone: -0.5; the controller's reaction to a noisier sensor adds per-tick
+# errors of its own, which lower it: -0.27 to -0.49 under 7e-5 rad/s of noise on kalman_cube) for
+# _FIT_TICKS ticks in a row, and suspect from then (not before: a one-tick jump lifts the window's
+# level for a few ticks, and the jump tests must see them untouched) until no axis has read above
+# _FIT_AGAIN of the level (squared) for a whole window. Judged only once _FIT_WARMUP * _FIT_WINDOW
+# evidence ticks (30 s; orel's window is longer, 121 ticks) have gone by since the start or a
+# response: a window holding the first pulses after a coast, before the latency and the
+# effectiveness are learnt, read up to 7 times the sensor's noise (kalman_cube-hold600 run 2,
+# ticks 37-39). Measured on kalman_cube, offline on the recorded residuals (141
+# kalman_cube-envelope and 20 kalman_cube-hold600 runs fault-free, 20 kalman_cube-gyro noise
+# increases of 3-10 times the sensor's noise): the ten-tick minimum of the level peaked at 2.1
+# times the gyro's noise_std fault-free, 3.0 in one 600 s hold (run 16: a limit cycle changing
+# pattern); without the heads and tails 5.6 (run 19: opposite thrusters' tails sharing ticks); the
+# noise increases crossed 3.5 times it in 19 of 20 runs.
+# With ``fit_innovation`` (a flexible craft, orel) the test reads the adaptive observer's
+# innovation instead and is given no tick of a sustained burn (FlightSoftware._fit_regressors):
+# orel's raw residual holds the flex modes' ringing (0.2-0.9 Hz, correlated from tick to tick: the
+# lag-one level read negative, -1.1e-9 (rad/s)^2 on roll in orel-gyro run 71 under a noise 7 times
+# the sensor's); the adaptive observer's innovation has the ringing taken out and read that noise
+# at 10 times the sensor's (5.2e-5 rad/s), the other axes 0.9-1.7 times. A rigid craft has no
+# ringing to take out, and its whole-tick burns are regressors like any other: kalman_cube-gyro
+# without them named no noise increase (19 of 20 with them).
 _FIT_WINDOW, _FIT_DOF, _FIT_TICKS, _FIT_AGAIN, _FIT_WARMUP = 75, 30, 10, 0.5, 2
 _FIT_WHITE = 0.2
 # A held jump is named a spike or a bias step only if the observer's innovation along it is at
@@ -210,7 +218,8 @@ class GyroCheck:
                  slow_forget: float = 0.995, noise_ticks: int = 3, warmup_ticks: int = 30,
                  start_ticks: int = 2, hold_rad_s: float | None = None,
                  lag_noise_rad_s: float | None = None,
-                 fit_noise_rad_s: float | None = None) -> None:
+                 fit_noise_rad_s: float | None = None,
+                 fit_innovation: bool = False) -> None:
         self.jump_rad_s = float(jump_rad_s)
         self.hold_rad_s = self.jump_rad_s if hold_rad_s is None else float(hold_rad_s)
         # per axis: a third of the three axes' floor (sensor noise sigma: 18 sigma^2 for the
@@ -253,6 +262,9 @@ class GyroCheck:
         self._lag_calm = 0  # ticks in a row without noise after it was named
         self.lag_sigma_rad_s = 0.0  # the largest axis's noise the lag test reads (0 until known)
         self.fit_noise2 = None if fit_noise_rad_s is None else float(fit_noise_rad_s) ** 2
+        # a flexible craft (adaptive observer): the fit reads the innovation, not the raw
+        # residual, and is given no tick of a sustained burn (FlightSoftware._fit_regressors)
+        self.fit_innovation = bool(fit_innovation)
         self._fit_rows: list[tuple[int, np.ndarray, np.ndarray]] = []  # (call, r, regressors)
         self._fit_over = 0
         self._fit_calm = 0
@@ -575,11 +587,14 @@ class GyroCheck:
         if ok:
             if self._fit_rows and len(self._fit_rows[-1][2]) != len(x):
                 self._fit_rows = []
-            self._fit_rows.append((self._calls, v.residual.copy(), x.copy()))
+            r = v.residual
+            if self.fit_innovation and self._innovation is not None:
+                r = self._innovation
+            self._fit_rows.append((self._calls, r.copy(), x.copy()))
             self._fit_seen += 1
         window = max(_FIT_WINDOW, len(x) + 1 + _FIT_DOF)
         del self._fit_rows[:-window]
-        if self._fit_seen < _FIT_WARMUP * window:
+        if self._fit_seen < _FIT_WARMUP * _FIT_WINDOW:
             return v
         calls = np.array([c for c, _, _ in self._fit_rows])
         pairs = calls[1:] == calls[:-1] + 1

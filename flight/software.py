@@ -81,6 +81,9 @@ _SUSTAINED = 0.75
 # A hypothesis replaces the detector's when its residual sum of squares is this many times
 # smaller. chosen: a factor that noise over 10 ticks does not reach by chance.
 _ISOLATION_RATIO = 2.0
+# The gyro's fit noise test on a flexible craft is given no tick on which a thruster burns this
+# share of the tick or more (``_fit_regressors``).
+_FIT_SKIP_BURN = 1.0
 # When the ticks so far cannot tell the two apart (the controller alternating the pair fires
 # one of them on every tick), the pair is left out of the allocation for this many ticks (a
 # test of seed 003's "commanded test pulse" kind, in reverse: a stuck thruster still pushes,
@@ -255,7 +258,8 @@ class FlightSoftware:
                                     lag_noise_rad_s=None if dc.gyro_noise_all_ticks is None
                                     else dc.gyro_noise_all_ticks * vehicle.gyro.noise_std_rad_s,
                                     fit_noise_rad_s=None if dc.gyro_noise_fit is None
-                                    else dc.gyro_noise_fit * vehicle.gyro.noise_std_rad_s)
+                                    else dc.gyro_noise_fit * vehicle.gyro.noise_std_rad_s,
+                                    fit_innovation=self.observer.kind == "adaptive")
         # confirm_stuck_on: noisy: the square of the every-tick noise level, and (tick, raw
         # residual) of the last ticks the gyro check judged (kept only then)
         self._noisy_level2 = None if dc.confirm_stuck_on != "noisy" else (
@@ -385,13 +389,22 @@ class FlightSoftware:
         transients of a pulse, which the equivalent burn holds only to first order, depend on
         where they fall (kalman_cube-hold600 run 19: a limit cycle whose opposite thrusters'
         heads and tails share ticks read 5.6 times the sensor's noise without them). None
-        when the test is off or the model gives no burns."""
+        when the test is off, the model gives no burns, or, on a craft with an adaptive
+        observer (flex modes), a thruster burns the whole tick: a sustained burn's errors
+        there (the flex it drives, the observer's model error) are not a fixed function of the
+        burns over a window (orel-burn, the test on the raw residual with those ticks: an
+        orbit correction's 107 s burn read as a noise increase in 28 of 60 fault-free runs;
+        run 0 on the innovation too), so the test neither learns from those ticks nor judges
+        on them. A rigid craft's whole-tick burns are regressors like any other
+        (kalman_cube-gyro without them: no noise increase named, 19 of 20 with them)."""
         burn_prev, self._burn_prev = self._burn_prev, np.asarray(pred.burn_s, dtype=float)
         if self.gyro_check.fit_noise2 is None or pred.eff_s is None:
             return None
         burn = self._burn_prev
         bp = burn if burn_prev is None else burn_prev
         whole = self.h - 1e-9
+        if self.gyro_check.fit_innovation and (burn >= _FIT_SKIP_BURN * self.h - 1e-9).any():
+            return None  # a sustained burn on a flexible craft (docstring)
         partial = (burn > 0.0) & (burn < whole)
         parts = [self.effectiveness.k * pred.eff_s]
         if pred.deff_dlat is not None:

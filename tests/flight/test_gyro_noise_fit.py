@@ -1,5 +1,5 @@
 """The gyro's noise test through a fit of the thrusters' errors (``detector.gyro_noise_fit``;
-kalman_cube).
+kalman_cube and orel).
 
 Oracles: by construction, the raw residual of a rate gyro with white noise of sigma is
 ``n(k) - n(k-1)`` plus the thrusters' errors; errors that are a fixed linear function of the
@@ -7,8 +7,9 @@ tick's regressors (a thruster's scale, direction and timing) are fitted out exac
 leftover's lag-one autocovariance is ``sigma^2`` (its expected value), whatever the firing
 pattern. A limit cycle that alternates opposite thrusters makes the raw residual's own lag-one
 autocovariance read the errors, not the sensor (computed here directly: the lag test on the raw
-residual has nothing to take them out with). The closed loop: a campaign run whose truth the
-plant was given.
+residual has nothing to take them out with). A structure's ringing that an adaptive observer
+follows is in the raw residual and not in the observer's innovation, which the test reads where
+there is one. The closed loop: campaign runs whose truth the plant was given.
 """
 
 from __future__ import annotations
@@ -25,9 +26,9 @@ START = 3  # the check's start-up ticks (suspect by design)
 N_THR = 6
 
 
-def _check(level: float | None = LEVEL) -> GyroCheck:
+def _check(level: float | None = LEVEL, innovation: bool = False) -> GyroCheck:
     return GyroCheck(jump_rad_s=1.0, noise_floor_rad_s=np.sqrt(18) * SPEC,
-                     fit_noise_rad_s=level)
+                     fit_noise_rad_s=level, fit_innovation=innovation)
 
 
 def _limit_cycle(n: int, seed: int) -> np.ndarray:
@@ -56,8 +57,11 @@ def _samples(x: np.ndarray, seed: int, sensor: np.ndarray,
     return 1e-3 + true + sensor * rng.standard_normal((len(x), 3))
 
 
-def _run(chk: GyroCheck, ys: np.ndarray, x: np.ndarray) -> list:
-    return [chk.step(y, np.zeros(3), 1e-6, regressors=x[k]) for k, y in enumerate(ys)]
+def _run(chk: GyroCheck, ys: np.ndarray, x: np.ndarray,
+         innovation: np.ndarray | None = None) -> list:
+    return [chk.step(y, np.zeros(3), 1e-6, regressors=x[k],
+                     innovation=None if innovation is None else innovation[k])
+            for k, y in enumerate(ys)]
 
 
 def test_the_fit_reads_the_sensor_where_the_raw_residual_reads_the_thrusters() -> None:
@@ -118,6 +122,33 @@ def test_a_bias_step_is_left_to_the_jump_tests() -> None:
     assert not any(t.fault for t in v) and not any(t.suspect for t in v[START:])
 
 
+def test_the_fit_reads_the_adaptive_observer_innovation() -> None:
+    """A 0.3 Hz ringing of 20 x SPEC on y in the samples (orel's roll and in-plane modes ring
+    at 0.2-0.9 Hz), which an adaptive observer follows, and the sensor's noise up 4 times on y
+    from tick 600, 10 seeds. Read on the innovation (``fit_innovation``; here the raw residual
+    less the ringing's change) the noise is named after the increase and never before it; on
+    the raw residual (the default, and what a check given the same innovation without the
+    option reads) never (the ringing's ticks are correlated, so its lag-one level reads
+    negative: not white)."""
+    for seed in range(10):
+        x = _limit_cycle(900, 150 + seed)
+        ys = _samples(x, 170 + seed, np.full(3, SPEC))
+        rng = np.random.default_rng(190 + seed)
+        ys[600:, 1] += SPEC * np.sqrt(15.0) * rng.standard_normal(300)
+        t = np.arange(len(ys)) * 0.2
+        ring = np.zeros_like(ys)
+        ring[:, 1] = 20.0 * SPEC * np.sin(2 * np.pi * 0.3 * t + seed)
+        r_inn = np.diff(ys, axis=0)  # the residual of the samples without the ringing
+        for chk in (_check(), _check(innovation=True)):
+            v = _run(chk, ys[:1] + ring[:1], x[:1])  # the first tick: no previous sample
+            v += _run(chk, (ys + ring)[1:], x[1:], innovation=r_inn)
+            if not chk.fit_innovation:
+                assert not any(q.fault for q in v), seed
+        named = [k for k, q in enumerate(v) if q.fault]
+        assert len(named) == 1 and v[named[0]].fault == NOISE, (seed, named)
+        assert 600 + _FIT_TICKS <= named[0] <= 600 + 1.5 * _FIT_WINDOW + _FIT_TICKS, (seed, named)
+
+
 def test_off_by_default() -> None:
     """Without the level (the other vehicles), no noise is read from the fit."""
     x = _limit_cycle(600, 7)
@@ -137,3 +168,32 @@ def test_a_noisy_gyro_on_kalman_cube_is_named_as_the_gyro(tmp_path) -> None:
     assert dets[0]["t_s"] > spec.fault["t_s"], dets
     _, r0 = campaign_run(tmp_path / "off", "kalman_cube-gyro", 7, {"gyro_noise_fit": "null"})
     assert r0.summary["detections"] == [], r0.summary["detections"]
+
+
+def test_a_noisy_gyro_on_orel_is_named_as_the_gyro(tmp_path) -> None:
+    """orel-gyro run 71: noise of 3.5e-5 rad/s (7 x orel's 5e-6) on x from 5.2 s, through a
+    slew and the hold after it, the flex modes ringing in the raw residual. Named a gyro fault
+    (read on the observer's innovation), and nothing else; without the fit test the same run
+    names nothing."""
+    spec, r = campaign_run(tmp_path, "orel-gyro", 71)
+    assert spec.fault["kind"] == "gyro_noise"
+    dets = r.summary["detections"]
+    assert [d["type"] for d in dets] == ["gyro_fault"], dets
+    assert dets[0]["t_s"] > spec.fault["t_s"], dets
+    _, r0 = campaign_run(tmp_path / "off", "orel-gyro", 71, {"gyro_noise_fit": "null"})
+    assert r0.summary["detections"] == [], r0.summary["detections"]
+
+
+def test_an_orbit_correction_is_not_a_noisy_gyro(tmp_path, monkeypatch) -> None:
+    """orel-burn run 0: a fault-free orbit correction, the front belt burning whole ticks from
+    10 s to 117 s. No detection; with the burn's ticks given to the fit test, it names a gyro
+    noise increase (the oracle: the exclusion is what keeps it quiet)."""
+    import flight.software
+
+    spec, r = campaign_run(tmp_path, "orel-burn", 0)
+    assert spec.fault is None
+    assert r.summary["detections"] == [], r.summary["detections"]
+    monkeypatch.setattr(flight.software, "_FIT_SKIP_BURN", 2.0)
+    _, r1 = campaign_run(tmp_path / "fed", "orel-burn", 0)
+    assert [d["type"] for d in r1.summary["detections"]][:1] == ["gyro_fault"], \
+        r1.summary["detections"]
