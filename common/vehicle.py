@@ -412,10 +412,12 @@ class DetectorCfg(_Model):
     # (flight.gyro_check: the raw residual of the last 75 evidence ticks fitted on each
     # thruster's learnt increment, its latency sensitivity and its partial burns; the
     # leftover's lag-one autocovariance reads the sensor's noise with the thrusters' fixed
-    # scale, direction and timing errors taken out): an axis noisier than this many times the
+    # scale, direction and timing errors taken out; with an adaptive observer, its innovation
+    # instead, without the ticks of sustained burns): an axis noisier than this many times the
     # gyro's noise_std_rad_s for 10 ticks in a row, after 30 s of evidence, is a noise
     # increase. For a vehicle that fires on nearly every tick and whose thrust errors are
-    # larger than its sensor's noise (kalman_cube). None: off.
+    # larger than its sensor's noise (kalman_cube), or whose flex rings in the residual (orel).
+    # None: off.
     gyro_noise_fit: PosFloat | None = None
 
 
