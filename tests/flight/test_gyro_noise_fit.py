@@ -157,30 +157,19 @@ def test_off_by_default() -> None:
     assert not any(t.fault for t in v)
 
 
-def test_a_noisy_gyro_on_kalman_cube_is_named_as_the_gyro(tmp_path) -> None:
-    """kalman_cube-gyro run 7: noise of 8.4e-5 rad/s (8.4 x SPEC) on x from 40.2 s, the cube
-    firing on every tick. Named a gyro fault, and nothing else; without the fit test the same
-    run names nothing (the oracle: the test can fail)."""
-    spec, r = campaign_run(tmp_path, "kalman_cube-gyro", 7)
+@pytest.mark.parametrize("campaign, run", [("kalman_cube-gyro", 7), ("orel-gyro", 71)])
+def test_a_noisy_gyro_is_named_as_the_gyro(tmp_path, campaign, run) -> None:
+    """kalman_cube-gyro run 7: noise of 8.4e-5 rad/s (8.4 x its SPEC) on x from 40.2 s, the
+    cube firing on every tick. orel-gyro run 71: noise of 3.5e-5 rad/s (7 x orel's 5e-6) on x
+    from 5.2 s, through a slew and the hold after it, the flex modes ringing in the raw
+    residual (read on the observer's innovation). Each named a gyro fault, and nothing else;
+    without the fit test the same run names nothing (the oracle: the test can fail)."""
+    spec, r = campaign_run(tmp_path, campaign, run)
     assert spec.fault["kind"] == "gyro_noise"
     dets = r.summary["detections"]
     assert [d["type"] for d in dets] == ["gyro_fault"], dets
     assert dets[0]["t_s"] > spec.fault["t_s"], dets
-    _, r0 = campaign_run(tmp_path / "off", "kalman_cube-gyro", 7, {"gyro_noise_fit": "null"})
-    assert r0.summary["detections"] == [], r0.summary["detections"]
-
-
-def test_a_noisy_gyro_on_orel_is_named_as_the_gyro(tmp_path) -> None:
-    """orel-gyro run 71: noise of 3.5e-5 rad/s (7 x orel's 5e-6) on x from 5.2 s, through a
-    slew and the hold after it, the flex modes ringing in the raw residual. Named a gyro fault
-    (read on the observer's innovation), and nothing else; without the fit test the same run
-    names nothing."""
-    spec, r = campaign_run(tmp_path, "orel-gyro", 71)
-    assert spec.fault["kind"] == "gyro_noise"
-    dets = r.summary["detections"]
-    assert [d["type"] for d in dets] == ["gyro_fault"], dets
-    assert dets[0]["t_s"] > spec.fault["t_s"], dets
-    _, r0 = campaign_run(tmp_path / "off", "orel-gyro", 71, {"gyro_noise_fit": "null"})
+    _, r0 = campaign_run(tmp_path / "off", campaign, run, {"gyro_noise_fit": "null"})
     assert r0.summary["detections"] == [], r0.summary["detections"]
 
 
