@@ -82,7 +82,9 @@ _ALIKE_MARGIN = 6.0
 # and 88: 27 named 8, 29 named 6; the raw residual 4-5 deg from the stuck one, its leak
 # explaining 0.87 and 0.99, the named one's 0.46 and 0.22). chosen: over the first crossing
 # after the fault of the 120 orel-stuck runs no wrong thruster explained 0.85 where the
-# named one explained under 0.5.
+# named one explained under 0.5. The lower size bound also holds for the neighbours judged by
+# direction (orel-faults runs 66 and 84: a 50 % stuck 23 or 29 named as 17 or 18, whose leaks
+# fit at 6 % of their thrust).
 _LONE_EXPLAINED = 0.85
 _LONE_NAMED = 0.5
 _LONE_SIZE = (0.1, 1.4)
@@ -1022,8 +1024,13 @@ class FlightSoftware:
         if len(win) < _ALIKE_MIN_TICKS:
             return det
         if len(cands) >= 2:
+            # Only neighbours whose leak fits the raw residual at a plausible size: a thruster of
+            # a long lever arm matches the direction of a smaller one's leak at a few per cent
+            # of its own thrust.
+            size, _, _ = self._leak_fits(cands)
+            sized = [j for j, a in zip(cands, size, strict=True) if a >= _LONE_SIZE[0]]
             total = np.sum([w[3] for w in win], axis=0)
-            best = int(max(cands, key=lambda j: (float(total @ d.e_B[j]), j == i)))
+            best = int(max(sized or cands, key=lambda j: (float(total @ d.e_B[j]), j == i)))
             det = self._alike_named(det, best, avail)
         lone = self._lone_leak(det.thruster, avail)
         return det if lone is None else self._alike_named(det, lone, avail)
