@@ -1023,16 +1023,16 @@ class FlightSoftware:
         win = self._evidence_window()
         if len(win) < _ALIKE_MIN_TICKS:
             return det
+        fits = self._leak_fits(range(self.n))  # every thruster's, once
         if len(cands) >= 2:
             # Only neighbours whose leak fits the raw residual at a plausible size: a thruster of
             # a long lever arm matches the direction of a smaller one's leak at a few per cent
             # of its own thrust.
-            size, _, _ = self._leak_fits(cands)
-            sized = [j for j, a in zip(cands, size, strict=True) if a >= _LONE_SIZE[0]]
+            sized = [j for j in cands if fits[0][j] >= _LONE_SIZE[0]]
             total = np.sum([w[3] for w in win], axis=0)
             best = int(max(sized or cands, key=lambda j: (float(total @ d.e_B[j]), j == i)))
             det = self._alike_named(det, best, avail)
-        lone = self._lone_leak(det.thruster, avail)
+        lone = self._lone_leak(det.thruster, avail, fits)
         return det if lone is None else self._alike_named(det, lone, avail)
 
     def _leak_fits(self, cands) -> tuple[np.ndarray, np.ndarray, float]:
@@ -1052,23 +1052,21 @@ class FlightSoftware:
             rss.append(float(np.sum((raw - a * x) ** 2)))
         return np.array(size), np.array(rss), float(np.sum(raw * raw))
 
-    def _lone_leak(self, named: int, avail: np.ndarray) -> int | None:
+    def _lone_leak(self, named: int, avail: np.ndarray,
+                   fits: tuple[np.ndarray, np.ndarray, float]) -> int | None:
         """The thruster whose leak alone explains the raw residual over the evidence ticks, when
-        the named one's does not (``_LONE_*``); None otherwise."""
-        cands = np.flatnonzero(avail)
-        size, rss, energy = self._leak_fits(cands)
+        the named one's does not (``_LONE_*``); None otherwise. ``fits``: every thruster's
+        (``_leak_fits``)."""
+        size, rss, energy = fits
         if energy <= 0.0:
             return None
         explained = 1.0 - rss / energy
-        at = {int(j): k for k, j in enumerate(cands)}
-        if named in at and explained[at[named]] >= _LONE_NAMED:
+        if explained[named] >= _LONE_NAMED:
             return None
-        ok = (size >= _LONE_SIZE[0]) & (size <= _LONE_SIZE[1])
-        ok &= ~np.isin(cands, self.detector.groups[named])
-        if not ok.any():
-            return None
+        ok = avail & (size >= _LONE_SIZE[0]) & (size <= _LONE_SIZE[1])
+        ok[list(self.detector.groups[named])] = False
         k = int(np.argmax(np.where(ok, explained, -np.inf)))
-        return int(cands[k]) if explained[k] >= _LONE_EXPLAINED else None
+        return k if ok[k] and explained[k] >= _LONE_EXPLAINED else None
 
     def _alike_fit(self, cands: list[int]) -> tuple[int, float]:
         """Each candidate's leak fitted to the raw residual over the evidence window
