@@ -216,6 +216,8 @@ class Effectiveness:
         self._trusted = (self.x.copy(), self.P.copy())
         # Per thruster: (update count, thrust over nominal) of its last burns (``fraction``).
         self._recent: list[list[tuple[int, float]]] = [[] for _ in range(n)]
+        # The same from the raw residual, when ``update`` is given it (``weak`` with ``raw``).
+        self._recent_raw: list[list[tuple[int, float]]] = [[] for _ in range(n)]
         # Per thruster: (update count, burn weight |mu_j eff_j|^2, thrust over nominal) of its
         # last burns of any size: their weighted mean stands in for ``theta`` when none of the
         # window's burns is measurable alone (``fraction_since``).
@@ -303,11 +305,13 @@ class Effectiveness:
         return float(np.clip(value, 0.0, 1.5))
 
     def update(self, residual_B_rad_s: np.ndarray, eff_s: np.ndarray, use: np.ndarray,
-               deff_dlat: np.ndarray | None = None) -> None:
+               deff_dlat: np.ndarray | None = None, raw_B_rad_s: np.ndarray | None = None) -> None:
         """One tick: ``eff_s`` (N,) equivalent burn in the interval, ``use`` (N,) bool
         (available); ``residual`` measured minus predicted with the current ``k`` and the
         current ``latency_s``; ``deff_dlat`` (N,) the change of ``eff_s`` per second of extra
-        command latency (the onboard model's, ``OnboardModel.latency_sensitivity``)."""
+        command latency (the onboard model's, ``OnboardModel.latency_sensitivity``);
+        ``raw_B_rad_s`` the same tick's raw residual (before the observer), whose burn
+        fractions ``weak`` reads with ``raw``; it is not learnt from."""
         n = self.n
         lat = self.latency_bound_s > 0.0 and deff_dlat is not None
         # eff may be negative for an integrating gyro (the change of the mean burn): the thrust
@@ -335,6 +339,11 @@ class Effectiveness:
             hist = self._recent[j]
             hist.append((stamp, float(k_used[j] + phi @ r / (phi @ phi))))
             del hist[:-self.kept]
+            if raw_B_rad_s is not None:
+                hist = self._recent_raw[j]
+                hist.append((stamp, float(k_used[j] + phi @ np.asarray(raw_B_rad_s, float)
+                                          / (phi @ phi))))
+                del hist[:-self.kept]
         for j in np.flatnonzero(burn & ~big & (e > 0.0)):
             phi = self.mu[j] * e[j]
             w = float(phi @ phi)
@@ -371,20 +380,37 @@ class Effectiveness:
         if self.latency_bound_s > 0.0:
             self.x[2 * n] = self.latency_s
 
-    def weak(self, below: float, sigma: float, burns: int, use: np.ndarray) -> int | None:
+    def weak(self, below: float, sigma: float, burns: int, use: np.ndarray,
+             raw: bool = False) -> int | None:
         """Burn-fraction test: of the usable thrusters whose last ``burns`` measurable burns
         since the last ``restore`` average below ``below`` by ``sigma`` standard errors (the
-        burns' own scatter), the one with the lowest upper bound; None when there is none."""
+        burns' own scatter), the one with the lowest upper bound; None when there is none.
+        With ``raw``, the same burns' fractions from the raw residual must fall below too
+        (a burn ``update`` was given no raw residual for counts as not short)."""
         best: tuple[float, int] | None = None
         for j in np.flatnonzero(np.asarray(use, dtype=bool)):
-            fr = [f for t, f in self._recent[j] if t >= self._since][-int(burns):]
-            if len(fr) < int(burns):
-                continue
-            upper = float(np.mean(fr)) + float(sigma) * float(np.std(fr, ddof=1)) / math.sqrt(
-                len(fr))
+            upper = self._upper(self._recent[j], sigma, burns)
+            if raw and upper < float(below):
+                stamps = {t for t, _ in self._recent[j] if t >= self._since}
+                tail = sorted(stamps)[-int(burns):]
+                mine = [(t, f) for t, f in self._recent_raw[j] if t >= tail[0] and t in stamps]
+                upper = max(upper, self._upper(mine, sigma, burns) if len(mine) == len(tail)
+                            else math.inf)
             if upper < float(below) and (best is None or upper < best[0]):
                 best = (upper, int(j))
         return None if best is None else best[1]
+
+    def forget_burns(self) -> None:
+        """``weak`` reads only the burns of the next updates (as after a ``restore``)."""
+        self._since = self.updates
+
+    def _upper(self, hist: list[tuple[int, float]], sigma: float, burns: int) -> float:
+        """Mean plus ``sigma`` standard errors of the last ``burns`` fractions of ``hist``
+        since the last ``restore`` (infinity when there are fewer)."""
+        fr = [f for t, f in hist if t >= self._since][-int(burns):]
+        if len(fr) < int(burns):
+            return math.inf
+        return float(np.mean(fr)) + float(sigma) * float(np.std(fr, ddof=1)) / math.sqrt(len(fr))
 
     def rate_change_cov(self, eff_s: np.ndarray, use: np.ndarray,
                         deff_dlat: np.ndarray | None = None) -> np.ndarray:

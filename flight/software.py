@@ -108,6 +108,13 @@ _PROBE_TICKS = 2
 # The burn-fraction test names no thruster when a leak of another explains the last ticks'
 # residual this much better (residual sum of squares) than its own deficit.
 _WEAK_LEAK_RSS = 0.8
+# The burn-fraction test reads no burn of an orbit correction nor of the time this long after
+# its end: a thruster holding the attitude against the burn's residual torque burns on every
+# tick, and what the learning has not taken in of that torque reads as its deficit (with the
+# test reading them, 28 of the first 87 orel-burn-faults runs named a healthy thruster failing,
+# during the burn and up to 24 s after it, in the structure's ringing). chosen: 60 s, over
+# twice the longest seen.
+_WEAK_AFTER_BURN_S = 60.0
 # A stuck-on crossing held for confirmation (DetectorCfg.confirm_stuck_on) is confirmed by a
 # next tick above this many times the noise of the last ticks' raw residual along the
 # thruster's direction (a noisy sample is undone by the next one; two in a row along one
@@ -323,6 +330,7 @@ class FlightSoftware:
         self.orbit_correction = fc.orbit_correction
         self.dv_given_B_m_s = np.zeros(3)
         self.burn_state = "none" if fc.orbit_correction is None else "waiting"
+        self._burn_done_tick: int | None = None  # the tick the orbit correction ended
 
     # ------------------------------------------------------------------ pipeline
 
@@ -951,22 +959,36 @@ class FlightSoftware:
                 return det
         if out.detection is None and not out.held and pred.eff_s is not None:
             if learn:
-                self._learn(eps, pred, avail)
+                self._learn(eps, pred, avail, raw)
             else:
-                self._deferred_learning = (eps, pred, avail)
+                self._deferred_learning = (eps, pred, avail, raw)
         return out.detection
 
-    def _learn(self, eps: np.ndarray, pred: Prediction, avail: np.ndarray) -> None:
-        """One tick of the effectiveness learning (and the latency it may learn)."""
-        self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat)
+    def _learn(self, eps: np.ndarray, pred: Prediction, avail: np.ndarray,
+               raw: np.ndarray | None = None) -> None:
+        """One tick of the effectiveness learning (and the latency it may learn); ``raw`` the
+        tick's raw residual, for the burn-fraction test's ``weak_raw``."""
+        self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat, raw_B_rad_s=raw)
         dc = self.detector.cfg
         if dc.weak_below is not None:
-            self._weak = self.effectiveness.weak(dc.weak_below, dc.weak_sigma, dc.weak_burns,
-                                                 avail)
+            if self._burn_settling():
+                self.effectiveness.forget_burns()  # the test starts afresh after it
+                self._weak = None
+            else:
+                self._weak = self.effectiveness.weak(dc.weak_below, dc.weak_sigma,
+                                                     dc.weak_burns, avail, raw=dc.weak_raw)
         if pred.deff_dlat is not None:
             self.model.set_latency_offset(self.effectiveness.latency_s)
         if self.detector.quiet():
             self.effectiveness.trust()
+
+    def _burn_settling(self) -> bool:
+        """An orbit correction burning or trimming, or ended less than ``_WEAK_AFTER_BURN_S``
+        ago (the burn-fraction test is off)."""
+        if self.burn_state in ("burning", "trimming"):
+            return True
+        return self._burn_done_tick is not None and \
+            (self._tick - self._burn_done_tick) * self.h < _WEAK_AFTER_BURN_S
 
     def _suspect(self, tick: int, avail: np.ndarray) -> None:
         """Start a probe when a thruster failing and its opposite stuck on are both building
@@ -1261,6 +1283,7 @@ class FlightSoftware:
         tol = oc.tolerance_m_s
         if np.all(np.abs(rem) <= tol):
             self.burn_state = "done"
+            self._burn_done_tick = self._tick
             # The burn's end is the flight's own large change of the dynamics (several
             # thrusters that burnt every tick for minutes stop at once): the structure rings
             # for tens of seconds after, and the quiet ticks' level learnt before the burn
