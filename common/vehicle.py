@@ -299,6 +299,10 @@ class DetectorCfg(_Model):
         if self.weak_below is not None and self.effectiveness_bound <= 0.0:
             raise _FieldError("weak_below", "none when effectiveness_bound is 0 (the test "
                               "reads the learnt effectiveness)", self.weak_below)
+        if self.weak_degraded_below is not None and (
+                self.weak_below is None or self.weak_degraded_below <= self.weak_below):
+            raise _FieldError("weak_degraded_below", "none, or above weak_below (a second tier "
+                              "of the burn-fraction test)", self.weak_degraded_below)
         if self.confirm_stuck_on == "noisy" and self.gyro_noise_all_ticks is None:
             raise _FieldError("confirm_stuck_on", "true or false without gyro_noise_all_ticks "
                               "(noisy reads its level)", self.confirm_stuck_on)
@@ -334,6 +338,18 @@ class DetectorCfg(_Model):
     # along it: a healthy 15's last 12 burns read -0.90 on its innovation, 0.96 raw (orel-faults
     # run 55).
     weak_raw: bool = False
+    # A second, degraded tier of the same test: a thruster whose last ``weak_degraded_burns``
+    # measurable burns average below ``weak_degraded_below`` by ``weak_sigma`` standard errors
+    # (raw burns too with ``weak_raw``) is named degraded with their mean as its fraction (or
+    # fails to fire below fail_fraction). More burns than the first tier: a thruster at half
+    # its thrust sits nearer the envelope's 0.72 than one that fails. None: off.
+    weak_degraded_below: float | None = Field(default=None, gt=0.0, lt=1.0)
+    weak_degraded_burns: int = Field(default=20, ge=2, le=64)
+    # ... reading no burn of the first ``weak_degraded_after_s`` of the flight: each burn's
+    # fraction takes every other thruster burning with it as learnt, and at the start none is
+    # (each +/-15 %, and +/-15 % together, DESIGN 10), while the initial slew fires groups of
+    # them together on every tick.
+    weak_degraded_after_s: float = Field(default=0.0, ge=0.0, le=600.0)
     # With the learnt dead zone (relative_dead_zone_sigma): the flex a change of the burns
     # puts into the gyro at once, as a standard deviation per axis of this share of the change
     # of the burning thrusters' rate change along that axis (sum_j |mu_j,axis| eff_j) from

@@ -381,33 +381,45 @@ class Effectiveness:
             self.x[2 * n] = self.latency_s
 
     def weak(self, below: float, sigma: float, burns: int, use: np.ndarray,
-             raw: bool = False) -> int | None:
+             raw: bool = False, first: int = 0) -> int | None:
         """Burn-fraction test: of the usable thrusters whose last ``burns`` measurable burns
         since the last ``restore`` average below ``below`` by ``sigma`` standard errors (the
         burns' own scatter), the one with the lowest upper bound; None when there is none.
         With ``raw``, the same burns' fractions from the raw residual must fall below too
-        (a burn ``update`` was given no raw residual for counts as not short)."""
+        (a burn ``update`` was given no raw residual for counts as not short). Only the burns
+        of update ``first`` and later are read."""
         best: tuple[float, int] | None = None
+        since = max(self._since, int(first))
         for j in np.flatnonzero(np.asarray(use, dtype=bool)):
-            upper = self._upper(self._recent[j], sigma, burns)
+            upper = self._upper(self._recent[j], sigma, burns, since)
             if raw and upper < float(below):
-                stamps = {t for t, _ in self._recent[j] if t >= self._since}
+                stamps = {t for t, _ in self._recent[j] if t >= since}
                 tail = sorted(stamps)[-int(burns):]
                 mine = [(t, f) for t, f in self._recent_raw[j] if t >= tail[0] and t in stamps]
-                upper = max(upper, self._upper(mine, sigma, burns) if len(mine) == len(tail)
-                            else math.inf)
+                upper = max(upper, self._upper(mine, sigma, burns, since)
+                            if len(mine) == len(tail) else math.inf)
             if upper < float(below) and (best is None or upper < best[0]):
                 best = (upper, int(j))
         return None if best is None else best[1]
+
+    def burn_mean(self, j: int, burns: int, first: int = 0) -> float:
+        """Mean thrust over nominal of thruster ``j``'s last ``burns`` measurable burns since
+        the last ``restore`` and of update ``first`` or later (what ``weak`` read), in
+        [0, 1.5]; ``theta`` when there are fewer."""
+        since = max(self._since, int(first))
+        fr = [f for t, f in self._recent[j] if t >= since][-int(burns):]
+        value = float(np.mean(fr)) if len(fr) >= int(burns) else float(self.theta[j])
+        return float(np.clip(value, 0.0, 1.5))
 
     def forget_burns(self) -> None:
         """``weak`` reads only the burns of the next updates (as after a ``restore``)."""
         self._since = self.updates
 
-    def _upper(self, hist: list[tuple[int, float]], sigma: float, burns: int) -> float:
+    def _upper(self, hist: list[tuple[int, float]], sigma: float, burns: int,
+               since: int) -> float:
         """Mean plus ``sigma`` standard errors of the last ``burns`` fractions of ``hist``
-        since the last ``restore`` (infinity when there are fewer)."""
-        fr = [f for t, f in hist if t >= self._since][-int(burns):]
+        from update ``since`` (infinity when there are fewer)."""
+        fr = [f for t, f in hist if t >= since][-int(burns):]
         if len(fr) < int(burns):
             return math.inf
         return float(np.mean(fr)) + float(sigma) * float(np.std(fr, ddof=1)) / math.sqrt(len(fr))

@@ -260,7 +260,8 @@ class FlightSoftware:
                                            latency_bound_s=learn_lat,
                                            latency_floor_s=-self.model.nominal_latency_s,
                                            common_share=dc.effectiveness_common_share)
-        self.effectiveness.kept = max(self.effectiveness.kept, dc.weak_burns)
+        self.effectiveness.kept = max(self.effectiveness.kept, dc.weak_burns,
+                                      dc.weak_degraded_burns if dc.weak_degraded_below else 0)
         if learn_lat > 0.0:
             self.model.learn_latency()
         self.detector = Detector(self.arrays.mu_B_rad_s2, dc, self.arrays.names,
@@ -290,6 +291,8 @@ class FlightSoftware:
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
         self._weak: int | None = None  # the burn-fraction test's thruster this tick
+        self._weak_burns: int | None = None  # its degraded tier's burns (None: the first tier)
+        self._weak_first: int | None = None  # the degraded tier's first update read
         # (raw residual, burns, variance) of the last ticks, for the leak-fit test
         self._leak_window: list[tuple[np.ndarray, np.ndarray, float]] = []
         self._leak_streak: tuple[int, int] = (-1, 0)  # (thruster, ticks in a row)
@@ -851,7 +854,9 @@ class FlightSoftware:
                 if j != i and _rss_one(raw, closed[:, j][:, None] * mu[j][None, :]) \
                         < _WEAK_LEAK_RSS * rss_i:
                     return None, None
-        frac = float(self.effectiveness.fraction[i])
+        frac = float(self.effectiveness.fraction[i] if self._weak_burns is None
+                     else self.effectiveness.burn_mean(i, self._weak_burns,
+                                                       self._weak_first or 0))
         kind = DEGRADED if frac >= self.detector.cfg.fail_fraction else FAIL_TO_FIRE
         group = tuple(j for j in self.detector.groups[i] if avail[j])
         found = Detection(tick=self._tick, thruster=i, kind=kind, group=group,
@@ -977,6 +982,15 @@ class FlightSoftware:
             else:
                 self._weak = self.effectiveness.weak(dc.weak_below, dc.weak_sigma,
                                                      dc.weak_burns, avail, raw=dc.weak_raw)
+                self._weak_burns = None
+                if self._weak is None and dc.weak_degraded_below is not None and \
+                        self._tick * self.h >= dc.weak_degraded_after_s:
+                    if self._weak_first is None:
+                        self._weak_first = self.effectiveness.updates - 1  # this tick's burns
+                    self._weak = self.effectiveness.weak(dc.weak_degraded_below, dc.weak_sigma,
+                                                         dc.weak_degraded_burns, avail,
+                                                         raw=dc.weak_raw, first=self._weak_first)
+                    self._weak_burns = None if self._weak is None else dc.weak_degraded_burns
         if pred.deff_dlat is not None:
             self.model.set_latency_offset(self.effectiveness.latency_s)
         if self.detector.quiet():

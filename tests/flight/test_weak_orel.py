@@ -65,7 +65,8 @@ def test_closed_loop_orel_fails_to_fire_pulsed_inside_the_dead_zone(tmp_path) ->
     dets = r.summary["detections"]
     assert dets and (dets[0]["thruster"], dets[0]["type"]) == ("20", "fail_to_fire"), dets
     assert 0.0 <= dets[0]["t_s"] - spec.fault["t_s"] < 5.0, dets
-    _, r0 = campaign_run(tmp_path / "off", "orel-fails", 278, detector={"weak_below": "null"})
+    _, r0 = campaign_run(tmp_path / "off", "orel-fails", 278,
+                         detector={"weak_below": "null", "weak_degraded_below": "null"})
     assert r0.summary["detections"] == [], r0.summary["detections"]
 
 
@@ -116,3 +117,67 @@ def test_closed_loop_no_burn_fraction_names_during_an_orbit_correction(tmp_path,
     first = r0.summary["detections"][0]
     assert (first["thruster"], first["type"]) == ("23", "fail_to_fire"), r0.summary["detections"]
     assert first["t_s"] < spec.fault["t_s"]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_degraded_tier_names_a_thruster_at_half_thrust_with_its_fraction(seed) -> None:
+    """``weak_degraded_below``: thruster 20 at 0.45 of nominal, every other at the envelope's
+    worst (0.72): 20 alone is named by the second tier, and the mean of the burns it read is
+    within 0.1 of 0.45; at 0.72 everywhere, nothing in 600 ticks."""
+    v = load_vehicle("orel")
+    dc = v.flight.detector
+    assert dc.weak_degraded_below is not None
+    mu = VehicleArrays.from_vehicle(v).mu_B_rad_s2
+    n = len(mu)
+    i = [t.name for t in v.thrusters].index("20")
+    for theta_i, want in ((0.45, {i}), (0.72, set())):
+        theta = np.full(n, 0.72)
+        theta[i] = theta_i
+        rng = np.random.default_rng(seed)
+        eff = Effectiveness(mu, bound=dc.effectiveness_bound, r_var=dc.dead_zone_rad_s**2,
+                            tick_s=H, common_share=dc.effectiveness_common_share)
+        eff.kept = max(eff.kept, dc.weak_degraded_burns)
+        use = np.ones(n, bool)
+        named, fractions = set(), []
+        for _ in range(600):
+            e = np.where(rng.random(n) < 0.15, rng.uniform(0.03, H, n), 0.0)
+            r = mu.T @ ((theta - eff.k) * e) + 3e-5 * rng.standard_normal(3)
+            eff.update(r, e, use, raw_B_rad_s=r)
+            assert eff.weak(dc.weak_below, dc.weak_sigma, dc.weak_burns, use, raw=True) is None
+            j = eff.weak(dc.weak_degraded_below, dc.weak_sigma, dc.weak_degraded_burns, use,
+                         raw=True)
+            if j is not None:
+                named.add(int(j))
+                fractions.append(eff.burn_mean(int(j), dc.weak_degraded_burns))
+        assert named == want
+        if want:
+            assert abs(fractions[0] - 0.45) < 0.1, fractions[0]
+
+
+def test_closed_loop_orel_degraded_named_by_the_second_tier(tmp_path) -> None:
+    """orel-fails run 143: 12 degraded to 0.58 at 14.1 s, pulsed beside full burns. Named
+    degraded by the second tier within 10 s, its fraction within 0.1 of the fault's; with the
+    tier off nothing is named in the run (the oracle: the tier can fail)."""
+    spec, r = campaign_run(tmp_path, "orel-fails", 143)
+    assert (spec.fault["kind"], spec.fault["thruster"]) == ("degraded", "12")
+    dets = r.summary["detections"]
+    assert dets and (dets[0]["thruster"], dets[0]["type"]) == ("12", "degraded"), dets
+    assert 0.0 <= dets[0]["t_s"] - spec.fault["t_s"] < 10.0, dets
+    assert abs(dets[0]["fraction"] - spec.fault["fraction"]) < 0.1, dets
+    _, r0 = campaign_run(tmp_path / "off", "orel-fails", 143,
+                         detector={"weak_degraded_below": "null"})
+    assert r0.summary["detections"] == [], r0.summary["detections"]
+
+
+def test_closed_loop_the_degraded_tier_reads_nothing_of_the_initial_slew(tmp_path) -> None:
+    """orel-stuck run 116 (27 stuck on at 12.5 s): nothing is named before the fault. With
+    the tier reading the initial slew's burns too (``weak_degraded_after_s: 0``), a healthy
+    14 is named degraded at 8.8 s (the oracle: the guard can fail)."""
+    spec, r = campaign_run(tmp_path, "orel-stuck", 116)
+    t_fault = spec.fault["t_s"]
+    assert not [d for d in r.summary["detections"] if d["t_s"] < t_fault], r.summary
+    _, r0 = campaign_run(tmp_path / "all", "orel-stuck", 116,
+                         detector={"weak_degraded_after_s": 0.0})
+    first = r0.summary["detections"][0]
+    assert (first["thruster"], first["type"]) == ("14", "degraded"), r0.summary["detections"]
+    assert first["t_s"] < t_fault
