@@ -303,6 +303,9 @@ class DetectorCfg(_Model):
                 self.weak_below is None or self.weak_degraded_below <= self.weak_below):
             raise _FieldError("weak_degraded_below", "none, or above weak_below (a second tier "
                               "of the burn-fraction test)", self.weak_degraded_below)
+        if self.weak_small_below is not None and self.weak_below is None:
+            raise _FieldError("weak_small_below", "none without weak_below (a tier of the "
+                              "burn-fraction test)", self.weak_small_below)
         if self.confirm_stuck_on == "noisy" and self.gyro_noise_all_ticks is None:
             raise _FieldError("confirm_stuck_on", "true or false without gyro_noise_all_ticks "
                               "(noisy reads its level)", self.confirm_stuck_on)
@@ -344,6 +347,15 @@ class DetectorCfg(_Model):
     # fails to fire below fail_fraction). More burns than the first tier: a thruster at half
     # its thrust sits nearer the envelope's 0.72 than one that fails. None: off.
     weak_degraded_below: float | None = Field(default=None, gt=0.0, lt=1.0)
+    # A third tier that reads burns too small to measure alone (under twice the dead zone)
+    # too: consecutive ones of a thruster as heavy as one measurable burn are one burn of their
+    # size-weighted fraction; the last ``weak_burns`` of all its burns below
+    # ``weak_small_below`` by ``weak_sigma`` standard errors name it (degraded or fails to fire,
+    # with their mean). A full tick of iss_rs's SM roll thrusters moves the rate by
+    # 1.2-2.5e-6 rad/s against 4e-6, and one that failed to fire on 272 commanded ticks was
+    # never read. Small pulses read further from their thrust than full burns do (their
+    # timing errors weigh more), hence a threshold of its own. None: off.
+    weak_small_below: float | None = Field(default=None, gt=0.0, lt=1.0)
     weak_degraded_burns: int = Field(default=20, ge=2, le=64)
     # ... reading no burn of the first ``weak_degraded_after_s`` of the flight: each burn's
     # fraction takes every other thruster burning with it as learnt, and at the start none is

@@ -225,6 +225,14 @@ class Effectiveness:
         self.updates = 0  # calls of ``update`` so far: the stamp of the next one's burns
         self.kept = _FRACTION_KEPT  # burns kept per thruster (at least the weak test's)
         self._since = 0  # the first update whose burns ``weak`` reads (after a restore)
+        # With ``chunk_small``, consecutive burns too small to measure alone are summed per
+        # thruster (weight, weighted innovation and raw fractions) until they weigh as much as
+        # one measurable burn, then kept as one burn (stamp, fraction) in ``_chunks`` (and
+        # ``_chunks_raw``), which ``weak`` with ``small`` reads beside the measurable burns.
+        self.chunk_small = False
+        self._chunk: list[list[float]] = [[0.0, 0.0, 0.0] for _ in range(n)]
+        self._chunks: list[list[tuple[int, float]]] = [[] for _ in range(n)]
+        self._chunks_raw: list[list[tuple[int, float]]] = [[] for _ in range(n)]
 
     @property
     def theta(self) -> np.ndarray:
@@ -344,12 +352,30 @@ class Effectiveness:
                 hist.append((stamp, float(k_used[j] + phi @ np.asarray(raw_B_rad_s, float)
                                           / (phi @ phi))))
                 del hist[:-self.kept]
+        one = _MEASURABLE_SIGMA**2 * self.r_var  # |mu_j eff_j|^2 of a measurable burn
         for j in np.flatnonzero(burn & ~big & (e > 0.0)):
             phi = self.mu[j] * e[j]
             w = float(phi @ phi)
             hist = self._burns[j]
-            hist.append((stamp, w, float(k_used[j] + phi @ r / w)))
+            f = float(k_used[j] + phi @ r / w)
+            hist.append((stamp, w, f))
             del hist[:-_SMALL_BURNS_KEPT]
+            if self.chunk_small:
+                # Consecutive small burns, together as heavy as one measurable burn, count as
+                # one: their size-weighted fraction (the raw residual's too).
+                fr = (float(k_used[j] + phi @ np.asarray(raw_B_rad_s, float) / w)
+                      if raw_B_rad_s is not None else math.nan)
+                c = self._chunk[j]
+                c[0] += w
+                c[1] += w * f
+                c[2] += w * fr
+                if c[0] >= one:
+                    self._chunks[j].append((stamp, c[1] / c[0]))
+                    del self._chunks[j][:-self.kept]
+                    if raw_B_rad_s is not None:
+                        self._chunks_raw[j].append((stamp, c[2] / c[0]))
+                        del self._chunks_raw[j][:-self.kept]
+                    self._chunk[j] = [0.0, 0.0, 0.0]
         if self.bound <= 0.0:
             return  # learning off: only the measured fraction above
         d = np.diag_indices(len(self.x))
@@ -381,39 +407,52 @@ class Effectiveness:
             self.x[2 * n] = self.latency_s
 
     def weak(self, below: float, sigma: float, burns: int, use: np.ndarray,
-             raw: bool = False, first: int = 0) -> int | None:
+             raw: bool = False, first: int = 0, small: bool = False) -> int | None:
         """Burn-fraction test: of the usable thrusters whose last ``burns`` measurable burns
         since the last ``restore`` average below ``below`` by ``sigma`` standard errors (the
         burns' own scatter), the one with the lowest upper bound; None when there is none.
         With ``raw``, the same burns' fractions from the raw residual must fall below too
         (a burn ``update`` was given no raw residual for counts as not short). Only the burns
-        of update ``first`` and later are read."""
+        of update ``first`` and later are read. With ``small``, the small burns counted
+        together (``chunk_small``) are read beside the measurable ones."""
         best: tuple[float, int] | None = None
         since = max(self._since, int(first))
         for j in np.flatnonzero(np.asarray(use, dtype=bool)):
-            upper = self._upper(self._recent[j], sigma, burns, since)
+            hist, hist_raw = self._hists(j, small)
+            upper = self._upper(hist, sigma, burns, since)
             if raw and upper < float(below):
-                stamps = {t for t, _ in self._recent[j] if t >= since}
+                stamps = {t for t, _ in hist if t >= since}
                 tail = sorted(stamps)[-int(burns):]
-                mine = [(t, f) for t, f in self._recent_raw[j] if t >= tail[0] and t in stamps]
+                mine = [(t, f) for t, f in hist_raw if t >= tail[0] and t in stamps]
                 upper = max(upper, self._upper(mine, sigma, burns, since)
                             if len(mine) == len(tail) else math.inf)
             if upper < float(below) and (best is None or upper < best[0]):
                 best = (upper, int(j))
         return None if best is None else best[1]
 
-    def burn_mean(self, j: int, burns: int, first: int = 0) -> float:
-        """Mean thrust over nominal of thruster ``j``'s last ``burns`` measurable burns since
-        the last ``restore`` and of update ``first`` or later (what ``weak`` read), in
-        [0, 1.5]; ``theta`` when there are fewer."""
+    def _hists(self, j: int, small: bool) -> tuple[list[tuple[int, float]],
+                                                    list[tuple[int, float]]]:
+        """Thruster ``j``'s (burns, raw burns) in stamp order: the measurable ones, with
+        ``small`` the small ones counted together too (a small burn closing a chunk and a
+        measurable one never share a stamp: each update gives a thruster one burn)."""
+        if not small:
+            return self._recent[j], self._recent_raw[j]
+        return (sorted(self._recent[j] + self._chunks[j]),
+                sorted(self._recent_raw[j] + self._chunks_raw[j]))
+
+    def burn_mean(self, j: int, burns: int, first: int = 0, small: bool = False) -> float:
+        """Mean thrust over nominal of thruster ``j``'s last ``burns`` burns since the last
+        ``restore`` and of update ``first`` or later (what ``weak`` read, with ``small`` as
+        there), in [0, 1.5]; ``theta`` when there are fewer."""
         since = max(self._since, int(first))
-        fr = [f for t, f in self._recent[j] if t >= since][-int(burns):]
+        fr = [f for t, f in self._hists(j, small)[0] if t >= since][-int(burns):]
         value = float(np.mean(fr)) if len(fr) >= int(burns) else float(self.theta[j])
         return float(np.clip(value, 0.0, 1.5))
 
     def forget_burns(self) -> None:
         """``weak`` reads only the burns of the next updates (as after a ``restore``)."""
         self._since = self.updates
+        self._chunk = [[0.0, 0.0, 0.0] for _ in range(self.n)]
 
     def _upper(self, hist: list[tuple[int, float]], sigma: float, burns: int,
                since: int) -> float:
@@ -449,6 +488,7 @@ class Effectiveness:
         """After a response: back to the last trusted estimate."""
         self.x, self.P = self._trusted[0].copy(), self._trusted[1].copy()
         self._since = self.updates
+        self._chunk = [[0.0, 0.0, 0.0] for _ in range(self.n)]
 
 
 def leak_or_deficit(y: np.ndarray, burn_i: np.ndarray, closed_j: np.ndarray) -> float:

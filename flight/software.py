@@ -262,6 +262,7 @@ class FlightSoftware:
                                            common_share=dc.effectiveness_common_share)
         self.effectiveness.kept = max(self.effectiveness.kept, dc.weak_burns,
                                       dc.weak_degraded_burns if dc.weak_degraded_below else 0)
+        self.effectiveness.chunk_small = dc.weak_small_below is not None
         if learn_lat > 0.0:
             self.model.learn_latency()
         self.detector = Detector(self.arrays.mu_B_rad_s2, dc, self.arrays.names,
@@ -293,6 +294,7 @@ class FlightSoftware:
         self._weak: int | None = None  # the burn-fraction test's thruster this tick
         self._weak_burns: int | None = None  # its degraded tier's burns (None: the first tier)
         self._weak_first: int | None = None  # the degraded tier's first update read
+        self._weak_small = False  # named by the small-burn tier
         # (raw residual, burns, variance) of the last ticks, for the leak-fit test
         self._leak_window: list[tuple[np.ndarray, np.ndarray, float]] = []
         self._leak_streak: tuple[int, int] = (-1, 0)  # (thruster, ticks in a row)
@@ -855,8 +857,9 @@ class FlightSoftware:
                         < _WEAK_LEAK_RSS * rss_i:
                     return None, None
         frac = float(self.effectiveness.fraction[i] if self._weak_burns is None
-                     else self.effectiveness.burn_mean(i, self._weak_burns,
-                                                       self._weak_first or 0))
+                     else self.effectiveness.burn_mean(
+                         i, self._weak_burns, 0 if self._weak_small else self._weak_first or 0,
+                         small=self._weak_small))
         kind = DEGRADED if frac >= self.detector.cfg.fail_fraction else FAIL_TO_FIRE
         group = tuple(j for j in self.detector.groups[i] if avail[j])
         found = Detection(tick=self._tick, thruster=i, kind=kind, group=group,
@@ -991,6 +994,13 @@ class FlightSoftware:
                                                          dc.weak_degraded_burns, avail,
                                                          raw=dc.weak_raw, first=self._weak_first)
                     self._weak_burns = None if self._weak is None else dc.weak_degraded_burns
+                self._weak_small = False
+                if self._weak is None and dc.weak_small_below is not None:
+                    self._weak = self.effectiveness.weak(dc.weak_small_below, dc.weak_sigma,
+                                                         dc.weak_burns, avail, raw=True,
+                                                         small=True)
+                    if self._weak is not None:
+                        self._weak_burns, self._weak_small = dc.weak_burns, True
         if pred.deff_dlat is not None:
             self.model.set_latency_offset(self.effectiveness.latency_s)
         if self.detector.quiet():
