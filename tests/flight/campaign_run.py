@@ -26,3 +26,19 @@ def campaign_run(tmp_path: Path, campaign: str, run: int,
         path.write_text(text + "flight:\n  detector:\n" + "".join(
             f"    {k}: {v}\n" for k, v in detector.items()))
     return spec, simulate(path)
+
+
+def named_first_and_not_without(tmp_path: Path, campaign: str, run: int, thruster: str,
+                                kind: str, within_s: float, off: dict[str, Any]):
+    """Run ``run`` of ``campaign``: its fault is ``kind`` of ``thruster``, the first detection
+    names it so within ``within_s`` of the fault, and with the ``off`` detector overrides
+    nothing is named in the run (the oracle that the mechanism can fail). Returns (the spec,
+    the first detection)."""
+    spec, r = campaign_run(tmp_path, campaign, run)
+    assert (spec.fault["kind"], spec.fault["thruster"]) == (kind, thruster)
+    dets = r.summary["detections"]
+    assert dets and (dets[0]["thruster"], dets[0]["type"]) == (thruster, kind), dets
+    assert 0.0 <= dets[0]["t_s"] - spec.fault["t_s"] < within_s, dets
+    _, r0 = campaign_run(tmp_path / "off", campaign, run, detector=off)
+    assert r0.summary["detections"] == [], r0.summary["detections"]
+    return spec, dets[0]

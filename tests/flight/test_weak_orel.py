@@ -14,7 +14,7 @@ import pytest
 from common.vehicle import VehicleArrays
 from flight.detector import Effectiveness
 from hil.config import load_vehicle
-from tests.flight.campaign_run import campaign_run
+from tests.flight.campaign_run import campaign_run, named_first_and_not_without
 
 H = 0.2
 
@@ -60,14 +60,8 @@ def test_closed_loop_orel_fails_to_fire_pulsed_inside_the_dead_zone(tmp_path) ->
     most ticks while 10 burns the whole tick, so each deficit (3.7e-4 rad/s) lies inside the
     relative dead zone (2.2e-3). Named fails to fire within 5 s; with the test off nothing is
     named in the run (the oracle: the test can fail)."""
-    spec, r = campaign_run(tmp_path, "orel-fails", 278)
-    assert (spec.fault["kind"], spec.fault["thruster"]) == ("fail_to_fire", "20")
-    dets = r.summary["detections"]
-    assert dets and (dets[0]["thruster"], dets[0]["type"]) == ("20", "fail_to_fire"), dets
-    assert 0.0 <= dets[0]["t_s"] - spec.fault["t_s"] < 5.0, dets
-    _, r0 = campaign_run(tmp_path / "off", "orel-fails", 278,
-                         detector={"weak_below": "null", "weak_degraded_below": "null"})
-    assert r0.summary["detections"] == [], r0.summary["detections"]
+    named_first_and_not_without(tmp_path, "orel-fails", 278, "20", "fail_to_fire", 5.0,
+                                off={"weak_below": "null", "weak_degraded_below": "null"})
 
 
 def test_the_raw_burns_must_fall_short_too() -> None:
@@ -158,15 +152,9 @@ def test_closed_loop_orel_degraded_named_by_the_second_tier(tmp_path) -> None:
     """orel-fails run 143: 12 degraded to 0.58 at 14.1 s, pulsed beside full burns. Named
     degraded by the second tier within 10 s, its fraction within 0.1 of the fault's; with the
     tier off nothing is named in the run (the oracle: the tier can fail)."""
-    spec, r = campaign_run(tmp_path, "orel-fails", 143)
-    assert (spec.fault["kind"], spec.fault["thruster"]) == ("degraded", "12")
-    dets = r.summary["detections"]
-    assert dets and (dets[0]["thruster"], dets[0]["type"]) == ("12", "degraded"), dets
-    assert 0.0 <= dets[0]["t_s"] - spec.fault["t_s"] < 10.0, dets
-    assert abs(dets[0]["fraction"] - spec.fault["fraction"]) < 0.1, dets
-    _, r0 = campaign_run(tmp_path / "off", "orel-fails", 143,
-                         detector={"weak_degraded_below": "null"})
-    assert r0.summary["detections"] == [], r0.summary["detections"]
+    spec, first = named_first_and_not_without(tmp_path, "orel-fails", 143, "12", "degraded",
+                                              10.0, off={"weak_degraded_below": "null"})
+    assert abs(first["fraction"] - spec.fault["fraction"]) < 0.1, first
 
 
 def test_closed_loop_the_degraded_tier_reads_nothing_of_the_initial_slew(tmp_path) -> None:

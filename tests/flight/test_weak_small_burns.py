@@ -92,13 +92,7 @@ def test_closed_loop_iss_rs_small_thruster_failing_is_named(tmp_path) -> None:
     nearly every tick after it, each burn under the 4e-6 rad/s that makes one measurable.
     Named fails to fire by the small-burn tier within 20 s; without the tier nothing is named
     in the run (the oracle: the tier can fail)."""
-    from tests.flight.campaign_run import campaign_run
+    from tests.flight.campaign_run import named_first_and_not_without
 
-    spec, r = campaign_run(tmp_path, "iss_rs-fails", 58)
-    assert (spec.fault["kind"], spec.fault["thruster"]) == ("fail_to_fire", "SM+roll2_I")
-    dets = r.summary["detections"]
-    assert dets and (dets[0]["thruster"], dets[0]["type"]) == ("SM+roll2_I", "fail_to_fire"), dets
-    assert 0.0 <= dets[0]["t_s"] - spec.fault["t_s"] < 20.0, dets
-    _, r0 = campaign_run(tmp_path / "off", "iss_rs-fails", 58,
-                         detector={"weak_small_below": "null"})
-    assert r0.summary["detections"] == [], r0.summary["detections"]
+    named_first_and_not_without(tmp_path, "iss_rs-fails", 58, "SM+roll2_I", "fail_to_fire", 20.0,
+                                off={"weak_small_below": "null"})
