@@ -299,10 +299,9 @@ class DetectorCfg(_Model):
         if self.weak_below is not None and self.effectiveness_bound <= 0.0:
             raise _FieldError("weak_below", "none when effectiveness_bound is 0 (the test "
                               "reads the learnt effectiveness)", self.weak_below)
-        if self.weak_degraded_below is not None and (
-                self.weak_below is None or self.weak_degraded_below <= self.weak_below):
-            raise _FieldError("weak_degraded_below", "none, or above weak_below (a second tier "
-                              "of the burn-fraction test)", self.weak_degraded_below)
+        if self.weak_degraded_below is not None and self.weak_below is None:
+            raise _FieldError("weak_degraded_below", "none without weak_below (a tier of the "
+                              "burn-fraction test)", self.weak_degraded_below)
         if self.weak_small_below is not None and self.weak_below is None:
             raise _FieldError("weak_small_below", "none without weak_below (a tier of the "
                               "burn-fraction test)", self.weak_small_below)
@@ -343,8 +342,9 @@ class DetectorCfg(_Model):
     weak_raw: bool = False
     # A second, degraded tier of the same test: a thruster whose last ``weak_degraded_burns``
     # measurable burns average below ``weak_degraded_below`` by ``weak_sigma`` standard errors
-    # (raw burns too with ``weak_raw``) is named degraded with their mean as its fraction (or
-    # fails to fire below fail_fraction). More burns than the first tier: a thruster at half
+    # (raw burns too with ``weak_raw``; with ``weak_small_below`` the small burns summed as
+    # that tier sums them, and the raw burns always) is named degraded with their mean as its
+    # fraction (or fails to fire below fail_fraction). More burns than the first tier: a thruster at half
     # its thrust sits nearer the envelope's 0.72 than one that fails. None: off.
     weak_degraded_below: float | None = Field(default=None, gt=0.0, lt=1.0)
     # A third tier that reads burns too small to measure alone (under twice the dead zone)

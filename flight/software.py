@@ -292,9 +292,10 @@ class FlightSoftware:
         self._held: tuple | None = None
         self._deferred_learning: tuple | None = None
         self._weak: int | None = None  # the burn-fraction test's thruster this tick
-        self._weak_burns: int | None = None  # its degraded tier's burns (None: the first tier)
+        # what the tier that named it read, (burns, first update, small burns too) for
+        # ``Effectiveness.burn_mean``; None: the first tier (named with ``fraction``)
+        self._weak_read: tuple[int, int, bool] | None = None
         self._weak_first: int | None = None  # the degraded tier's first update read
-        self._weak_small = False  # named by the small-burn tier
         # (raw residual, burns, variance) of the last ticks, for the leak-fit test
         self._leak_window: list[tuple[np.ndarray, np.ndarray, float]] = []
         self._leak_streak: tuple[int, int] = (-1, 0)  # (thruster, ticks in a row)
@@ -856,10 +857,9 @@ class FlightSoftware:
                 if j != i and _rss_one(raw, closed[:, j][:, None] * mu[j][None, :]) \
                         < _WEAK_LEAK_RSS * rss_i:
                     return None, None
-        frac = float(self.effectiveness.fraction[i] if self._weak_burns is None
-                     else self.effectiveness.burn_mean(
-                         i, self._weak_burns, 0 if self._weak_small else self._weak_first or 0,
-                         small=self._weak_small))
+        read = self._weak_read
+        frac = float(self.effectiveness.fraction[i] if read is None
+                     else self.effectiveness.burn_mean(i, read[0], read[1], small=read[2]))
         kind = DEGRADED if frac >= self.detector.cfg.fail_fraction else FAIL_TO_FIRE
         group = tuple(j for j in self.detector.groups[i] if avail[j])
         found = Detection(tick=self._tick, thruster=i, kind=kind, group=group,
@@ -985,22 +985,26 @@ class FlightSoftware:
             else:
                 self._weak = self.effectiveness.weak(dc.weak_below, dc.weak_sigma,
                                                      dc.weak_burns, avail, raw=dc.weak_raw)
-                self._weak_burns = None
+                self._weak_read = None
                 if self._weak is None and dc.weak_degraded_below is not None and \
                         self._tick * self.h >= dc.weak_degraded_after_s:
                     if self._weak_first is None:
                         self._weak_first = self.effectiveness.updates - 1  # this tick's burns
+                    # with the small-burn tier set, the small burns summed are read here too,
+                    # and always with their raw burns (as that tier reads them)
+                    small = self.effectiveness.chunk_small
                     self._weak = self.effectiveness.weak(dc.weak_degraded_below, dc.weak_sigma,
                                                          dc.weak_degraded_burns, avail,
-                                                         raw=dc.weak_raw, first=self._weak_first)
-                    self._weak_burns = None if self._weak is None else dc.weak_degraded_burns
-                self._weak_small = False
+                                                         raw=dc.weak_raw or small,
+                                                         first=self._weak_first, small=small)
+                    if self._weak is not None:
+                        self._weak_read = (dc.weak_degraded_burns, self._weak_first, small)
                 if self._weak is None and dc.weak_small_below is not None:
                     self._weak = self.effectiveness.weak(dc.weak_small_below, dc.weak_sigma,
                                                          dc.weak_burns, avail, raw=True,
                                                          small=True)
                     if self._weak is not None:
-                        self._weak_burns, self._weak_small = dc.weak_burns, True
+                        self._weak_read = (dc.weak_burns, 0, True)
         if pred.deff_dlat is not None:
             self.model.set_latency_offset(self.effectiveness.latency_s)
         if self.detector.quiet():

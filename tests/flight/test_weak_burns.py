@@ -121,7 +121,8 @@ def test_closed_loop_iss_rs_degraded_inside_the_dead_zone_is_named() -> None:
     assert (d.names, d.kind, d.source) == (("P2+pitch_I",), DEGRADED, "effectiveness")
     assert t <= 15.0 and d.fraction == pytest.approx(0.4, abs=0.15)
     off, _, _ = _run("iss_rs", fault, 60.0, init=init,
-                     flight={"detector": {"weak_below": None, "weak_small_below": None}})
+                     flight={"detector": {"weak_below": None, "weak_small_below": None,
+                                          "weak_degraded_below": None}})
     assert off == []
 
 
