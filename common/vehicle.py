@@ -344,8 +344,9 @@ class DetectorCfg(_Model):
     # measurable burns average below ``weak_degraded_below`` by ``weak_sigma`` standard errors
     # (raw burns too with ``weak_raw``; with ``weak_small_below`` the small burns summed as
     # that tier sums them, and the raw burns always) is named degraded with their mean as its
-    # fraction (or fails to fire below fail_fraction). More burns than the first tier: a thruster at half
-    # its thrust sits nearer the envelope's 0.72 than one that fails. None: off.
+    # fraction (or fails to fire below fail_fraction). More burns than the first tier: a
+    # thruster at half its thrust sits nearer the envelope's 0.72 than one that fails.
+    # None: off.
     weak_degraded_below: float | None = Field(default=None, gt=0.0, lt=1.0)
     # A third tier that reads burns too small to measure alone (under twice the dead zone)
     # too: consecutive ones of a thruster as heavy as one measurable burn are one burn of their
