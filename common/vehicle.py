@@ -363,6 +363,29 @@ class DetectorCfg(_Model):
     # (each +/-15 %, and +/-15 % together, DESIGN 10), while the initial slew fires groups of
     # them together on every tick.
     weak_degraded_after_s: float = Field(default=0.0, ge=0.0, le=600.0)
+    # Test pulses (a commanded test pulse of one candidate; docs/design.md 6.5): when one
+    # measurable burn of a thruster reads below ``pulse_test_below`` of its thrust on the
+    # innovation and on the raw residual (a burn among others: their errors fall on it too),
+    # or the burn-fraction test names it, the flight tests it: two quiet ticks, then the
+    # thruster alone for ``pulse_test_ms`` (whole quanta, at least the minimum firing, at most
+    # half the tick: it ends before the next sample) and a quiet tick, in turn; every other
+    # thruster waits. Each pulse is read on the raw residual against the mean of the quiet
+    # samples on either side (a slow structural mode moves the rate nearly as much on them),
+    # when the test's quiet samples agree within the pulse's own effect. A read at
+    # ``pulse_test_healthy`` or above: healthy, not tested again for ``pulse_test_every_s``;
+    # the mean of
+    # ``pulse_test_count`` reads below it names the thruster with that fraction (degraded, or
+    # fails to fire below fail_fraction). A thruster commanded on a few ticks only (orel fires
+    # a belt thruster in bursts of several) gives too few burns for the burn-fraction test; a
+    # lone pulse is read against the sensor and the structure, not against its neighbours'
+    # errors. Thrusters whose pulse moves the rate by less than 4 dead zones are not tested.
+    # Short pulses read low (the thrust's rise is not over when the valve closes: 60 ms
+    # pulses of a healthy roll thruster read 0.5-0.6). None: off.
+    pulse_test_below: float | None = Field(default=None, gt=0.0, lt=1.0)
+    pulse_test_healthy: float = Field(default=0.6, gt=0.0, lt=1.0)
+    pulse_test_ms: float = Field(default=100.0, gt=0.0, le=10000.0)
+    pulse_test_count: int = Field(default=2, ge=1, le=10)
+    pulse_test_every_s: float = Field(default=30.0, ge=0.0, le=3600.0)
     # With the learnt dead zone (relative_dead_zone_sigma): the flex a change of the burns
     # puts into the gyro at once, as a standard deviation per axis of this share of the change
     # of the burning thrusters' rate change along that axis (sum_j |mu_j,axis| eff_j) from

@@ -449,6 +449,18 @@ class Effectiveness:
         value = float(np.mean(fr)) if len(fr) >= int(burns) else float(self.theta[j])
         return float(np.clip(value, 0.0, 1.5))
 
+    def last_burn(self, j: int) -> tuple[float, float] | None:
+        """Thruster ``j``'s measurable burn of the last update, (thrust over nominal on the
+        innovation, on the raw residual: the innovation's when the update had none); None when
+        it had none."""
+        hist = self._recent[j]
+        stamp = self.updates - 1
+        if not hist or hist[-1][0] != stamp:
+            return None
+        f = hist[-1][1]
+        raw = self._recent_raw[j]
+        return f, (raw[-1][1] if raw and raw[-1][0] == stamp else f)
+
     def forget_burns(self) -> None:
         """``weak`` reads only the burns of the next updates (as after a ``restore``)."""
         self._since = self.updates

@@ -105,6 +105,22 @@ _FIT_SKIP_BURN = 1.0
 # a failed one gives nothing) and the hypotheses are fitted again. Two ticks: an integrating
 # gyro's mean over the second interval has no burn of either in it.
 _PROBE_TICKS = 2
+# Test pulses (DetectorCfg.pulse_test_below): candidates queued from one tick's burns.
+_PULSE_CANDIDATES = 3
+# ... and only of thrusters whose pulse moves the rate by this many dead zones at least.
+_PULSE_MEASURABLE = 4.0
+# A test starts with this many quiet ticks: the first holds the tail of the burst before it
+# and the ringing it starts (read against it, a healthy thruster's first pulse read below 0.6
+# in 8 % of orel-envelope's tests, its later ones in 1 %).
+_PULSE_LEAD = 2
+# A pulse is read only when the test's quiet samples so far lie within this share of the
+# pulse's own effect along it: the straight line between two of them misses a mode of
+# 0.6-1.1 Hz (orel's in-plane arrays) by up to 0.5-0.8 of its step per tick, and two that
+# agree may straddle its peak (a healthy 1 read 0.31 between quiet samples 1.1 pulses apart,
+# orel-envelope run 84; a healthy 2 read 0.12 between two 0.4 apart, the quiet samples of its
+# test 1.0 apart). Within the bound, every read of a healthy thruster over 200 envelope runs
+# was 0.56 or more.
+_PULSE_STILL = 1.0
 # The burn-fraction test names no thruster when a leak of another explains the last ticks'
 # residual this much better (residual sum of squares) than its own deficit.
 _WEAK_LEAK_RSS = 0.8
@@ -296,6 +312,13 @@ class FlightSoftware:
         # ``Effectiveness.burn_mean``; None: the first tier (named with ``fraction``)
         self._weak_read: tuple[int, int, bool] | None = None
         self._weak_first: int | None = None  # the degraded tier's first update read
+        # The test running (DetectorCfg.pulse_test_below): the thruster, whether this tick's
+        # allocation is the test's, the tick of its last command, the raw residual and the
+        # thruster's burn of each test tick read so far, what its pulses read.
+        self._pulse: dict | None = None
+        self._pulse_end: dict[int, int] = {}  # the tick each thruster's last test ended
+        self._pulse_frac: float | None = None  # what the pulses read, when they named it
+        self._pulse_queue: list[int] = []  # thrusters waiting for their test
         # (raw residual, burns, variance) of the last ticks, for the leak-fit test
         self._leak_window: list[tuple[np.ndarray, np.ndarray, float]] = []
         self._leak_streak: tuple[int, int] = (-1, 0)  # (thruster, ticks in a row)
@@ -857,14 +880,18 @@ class FlightSoftware:
                 if j != i and _rss_one(raw, closed[:, j][:, None] * mu[j][None, :]) \
                         < _WEAK_LEAK_RSS * rss_i:
                     return None, None
-        read = self._weak_read
-        frac = float(self.effectiveness.fraction[i] if read is None
-                     else self.effectiveness.burn_mean(i, read[0], read[1], small=read[2]))
+        read, pulsed, self._pulse_frac = self._weak_read, self._pulse_frac, None
+        if pulsed is not None:
+            frac = pulsed
+        else:
+            frac = float(self.effectiveness.fraction[i] if read is None
+                         else self.effectiveness.burn_mean(i, read[0], read[1], small=read[2]))
         kind = DEGRADED if frac >= self.detector.cfg.fail_fraction else FAIL_TO_FIRE
         group = tuple(j for j in self.detector.groups[i] if avail[j])
         found = Detection(tick=self._tick, thruster=i, kind=kind, group=group,
                           names=tuple(self.arrays.names[j] for j in group), rho=frac,
-                          source="effectiveness", fraction=frac)
+                          source="effectiveness" if pulsed is None else "pulse_test",
+                          fraction=frac)
         return self._isolate_opposite(found, avail), found
 
     def _remembered(self, pred: Prediction) -> Prediction:
@@ -967,15 +994,16 @@ class FlightSoftware:
                 return det
         if out.detection is None and not out.held and pred.eff_s is not None:
             if learn:
-                self._learn(eps, pred, avail, raw)
+                self._learn(eps, pred, avail, raw, tick)
             else:
-                self._deferred_learning = (eps, pred, avail, raw)
+                self._deferred_learning = (eps, pred, avail, raw, tick)
         return out.detection
 
     def _learn(self, eps: np.ndarray, pred: Prediction, avail: np.ndarray,
-               raw: np.ndarray | None = None) -> None:
+               raw: np.ndarray | None = None, tick: int | None = None) -> None:
         """One tick of the effectiveness learning (and the latency it may learn); ``raw`` the
-        tick's raw residual, for the burn-fraction test's ``weak_raw``."""
+        tick's raw residual, for the burn-fraction test's ``weak_raw``; ``tick`` the tick whose
+        sample this is (the test pulse reads the sample after its pulse)."""
         self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat, raw_B_rad_s=raw)
         dc = self.detector.cfg
         if dc.weak_below is not None:
@@ -1005,10 +1033,116 @@ class FlightSoftware:
                                                          small=True)
                     if self._weak is not None:
                         self._weak_read = (dc.weak_burns, 0, True)
+        if dc.pulse_test_below is not None:
+            if self._weak is not None and self._pulse_testable()[self._weak]:
+                # The burn-fraction test's finding is a candidate too: the pulses judge it (a
+                # healthy 16 that a test had read at 0.92 was named degraded 0.45 by the
+                # degraded tier 5.6 s later, orel-envelope run 388).
+                j, self._weak = self._weak, None
+                every = int(round(dc.pulse_test_every_s / self.h))
+                if self._pulse is None and tick == self._tick and \
+                        self._tick - self._pulse_end.get(j, -10**9) >= every:
+                    self._pulse_queue = [j]
+                    self._pulse_next()
+            self._pulse_step(eps, pred, avail, raw, tick)
         if pred.deff_dlat is not None:
             self.model.set_latency_offset(self.effectiveness.latency_s)
         if self.detector.quiet():
             self.effectiveness.trust()
+
+    def _pulse_step(self, eps: np.ndarray, pred: Prediction, avail: np.ndarray,
+                    raw: np.ndarray | None, tick: int | None) -> None:
+        """The test pulses (``DetectorCfg.pulse_test_below``) on one sample's learning: keep
+        the sample of a test tick, read each pulse whose sample and quiet neighbours are all
+        kept, and judge; with no test running, queue the thrusters whose burn of this sample
+        read short on both residuals (the lowest first, at most ``_PULSE_CANDIDATES``)."""
+        dc = self.detector.cfg
+        p = self._pulse
+        if p is not None:
+            i = -1 if tick is None else tick - p["start"] - 1  # the test tick it answers
+            if i < 0:
+                return
+            j = p["j"]
+            p["raw"][i] = np.asarray(eps if raw is None else raw, dtype=float)
+            p["eff"][i] = float(pred.eff_s[j])
+            mu = self.arrays.mu_B_rad_s2[j]
+            for k in sorted(set(p["raw"]) - p["read"]):
+                if not _pulse_fires(k) or k - 1 not in p["raw"] or k + 1 not in p["raw"]:
+                    continue
+                # A pulse between two quiet ticks, read on the raw residual against their
+                # mean: a structural mode of a few tenths of a hertz moves the rate along the
+                # pulse nearly as much on the ticks beside it (a healthy 6 read 0.43-0.44 on
+                # two consecutive pulses, orel-fails run 78), and the adaptive observer's
+                # innovation takes a pulse's deficit in as flex and lends it to the next.
+                p["read"].add(k)
+                e = p["eff"][k]
+                if e <= 0.0:
+                    continue
+                c = e * float(mu @ mu)  # the pulse's effect along mu, per unit of thrust
+                quiet = [float(r @ mu) for q, r in p["raw"].items()
+                         if q <= k + 1 and not _pulse_fires(q)]
+                if max(quiet) - min(quiet) > _PULSE_STILL * c:
+                    continue  # the structure rings too hard to read the pulse against it
+                dw = p["raw"][k] - 0.5 * (p["raw"][k - 1] + p["raw"][k + 1])
+                p["reads"].append(float(self.effectiveness.k[j]) + float(dw @ mu) / c)
+            reads = p["reads"]
+            if reads and max(reads) >= dc.pulse_test_healthy:
+                self._pulse_over(j)  # healthy
+            elif len(reads) >= dc.pulse_test_count:
+                mean = float(np.mean(reads))
+                if mean < dc.pulse_test_healthy and self._weak is None:
+                    self._pulse_over(j, next_one=False)
+                    self._weak, self._weak_read = j, None
+                    self._pulse_frac = float(np.clip(mean, 0.0, 1.5))
+                else:
+                    self._pulse_over(j)
+            return
+        if self.detector.latched is not None or self._probe is not None or \
+                self._gyro_suspect() or self._burn_settling() or self.fdir.safe_mode or \
+                tick != self._tick:
+            return
+        every = int(round(dc.pulse_test_every_s / self.h))
+        found = []
+        for j in np.flatnonzero(avail & self.fdir.available & self._pulse_testable()):
+            read = self.effectiveness.last_burn(int(j))
+            if read is not None and max(read) < dc.pulse_test_below and \
+                    self._tick - self._pulse_end.get(int(j), -10**9) >= every:
+                found.append((read[0], int(j)))
+        self._pulse_queue = [j for _, j in sorted(found)[:_PULSE_CANDIDATES]]
+        self._pulse_next()
+
+    def _pulse_next(self) -> None:
+        """Start the test of the next queued thruster (fired on this tick's allocation)."""
+        if self._pulse_queue:
+            self._pulse = {"j": self._pulse_queue.pop(0), "start": self._tick, "raw": {},
+                           "eff": {}, "read": set(), "reads": []}
+
+    def _pulse_over(self, j: int, next_one: bool = True, judged: bool = True) -> None:
+        """Thruster ``j``'s test ended (``judged``: healthy or named; else abandoned, and it
+        may be tested again at once); the next queued one starts (``next_one``)."""
+        self._pulse = None
+        if judged:
+            self._pulse_end[j] = self._tick
+        if next_one:
+            self._pulse_next()
+        else:
+            self._pulse_queue = []
+
+    def _pulse_testable(self) -> np.ndarray:
+        """(N,) bool: the thrusters whose test pulse moves the rate by ``_PULSE_MEASURABLE``
+        dead zones at least (orel's middle belt, 1 in 100 ms, is left to the other tests)."""
+        return np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) * self._pulse_ms() / 1000.0 \
+            >= _PULSE_MEASURABLE * self.detector.cfg.dead_zone_rad_s
+
+    def _pulse_ms(self) -> int:
+        """The test pulse (ms): ``pulse_test_ms`` in whole quanta, at least the minimum
+        firing, at most half the tick (it ends before the next sample)."""
+        t = self.vehicle.timing
+        q = float(t.pwm_quantum_ms)
+        ms = q * math.floor(self.detector.cfg.pulse_test_ms / q + 1e-9)
+        lo = q * math.ceil(float(t.min_on_ms) / q - 1e-9)
+        hi = q * math.floor(500.0 * self.h / q + 1e-9)
+        return int(min(max(ms, lo), hi))
 
     def _burn_settling(self) -> bool:
         """An orbit correction burning or trimming, or ended less than ``_WEAK_AFTER_BURN_S``
@@ -1294,6 +1428,24 @@ class FlightSoftware:
             self._alloc = None
             self._on_ms = np.zeros(self.n, dtype=int)
             return
+        p = self._pulse
+        if p is not None:
+            i = self._tick - p["start"]  # the test's tick
+            if self.detector.latched is not None or not av[p["j"]] or \
+                    self.burn_state in ("burning", "trimming") or \
+                    i >= _pulse_ticks(self.detector.cfg.pulse_test_count):
+                # overtaken, or too many of its samples not kept (the gyro check held or
+                # skipped them) to read its pulses: no verdict
+                self._pulse_over(p["j"], next_one=False, judged=False)
+                p = None
+        if p is not None:
+            # A test's tick: quiet, or the thruster alone (_pulse_fires); every other
+            # thruster waits.
+            self._alloc = None
+            self._on_ms = np.zeros(self.n, dtype=int)
+            if _pulse_fires(i) and i < _pulse_ticks(self.detector.cfg.pulse_test_count) - 1:
+                self._on_ms[p["j"]] = self._pulse_ms()
+            return
         d = self._demand
         oc = self.orbit_correction
         if oc is not None and self.burn_state != "done" and self._tick * self.h >= oc.start_s:
@@ -1376,6 +1528,9 @@ class FlightSoftware:
         self._probe = None
         self._confirm = None
         self._alike_hold = None
+        self._pulse = None
+        self._pulse_frac = None
+        self._pulse_queue = []
         self.gyro_check.forget_pending()
         self.gyro_check.restart_noise()
         # The evidence restarts on the new configuration: effectiveness back to its last
@@ -1400,6 +1555,18 @@ class FlightSoftware:
         resp = self.fdir.handle("peer_back")
         if resp.rebaseline and getattr(self, "_obs", None) is not None:
             self.rebaseline()
+
+
+def _pulse_fires(i: int) -> bool:
+    """Whether tick ``i`` of a test (from 0) fires the pulse: ``_PULSE_LEAD`` quiet ticks,
+    then a pulse and a quiet tick in turn."""
+    return i >= _PULSE_LEAD and (i - _PULSE_LEAD) % 2 == 0
+
+
+def _pulse_ticks(count: int) -> int:
+    """The most ticks a test of ``count`` pulses lasts: the lead, a pulse and a quiet tick per
+    pulse, and room for one more pulse when a sample was not kept."""
+    return _PULSE_LEAD + 2 * (count + 1) + 1
 
 
 def _sense(det: Detection) -> float:

@@ -86,7 +86,8 @@ def _print_summary(doc: dict[str, Any]) -> None:
                           f"{_fmt_lat(fe)}, mean signed {fe['mean_signed']}")
                 if "commanded_goal" in st:
                     g = st["commanded_goal"]
-                    print(f"    commanded on {g['min_ticks']}+ ticks after the fault: detected "
+                    print(f"    commanded on {g['min_ticks']}+ ticks after the fault (or "
+                          f"detected sooner: {g.get('detected_sooner', 0)}): detected "
                           f"{_fmt_rate(g['detection'])}, from the first command p50/p90/max "
                           f"{_fmt_lat(g['latency_from_command_s'])}")
     if doc["failures"]:

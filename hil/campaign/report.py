@@ -188,8 +188,9 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
             if goals:
                 n = vs[goals[0]]["commanded_goal"]["min_ticks"]
                 L += [f"Faults seen only when their thruster fires, runs whose thruster was "
-                      f"commanded on {n} ticks or more after the fault (the FDIR goal's "
-                      f"population):", "",
+                      f"commanded on {n} ticks or more after the fault, or detected before its "
+                      f"{n}th command (the FDIR goal's population; the response ends the "
+                      f"thruster's commands):", "",
                       "| fault class | detection rate [95 % CI] | latency from the first "
                       "command s p50 / p90 / max |", "|---|---|---|"]
                 for k in goals:

@@ -31,8 +31,10 @@ fault-free runs), each with its exact Clopper-Pearson 95 % interval:
   ``FRACTION_TOL`` (the goal's "fraction within +/-0.1");
 * for faults seen only when their thruster fires (fails to fire, degraded), also the rate and
   latency the FDIR goal states (issue 12): among runs whose thruster was commanded on at least
-  ``GOAL_COMMANDED_TICKS`` ticks after the fault, the detection rate, and the latency from the
-  first command acting after the fault (``latency_from_command_s``), p50 / p90 / max.
+  ``GOAL_COMMANDED_TICKS`` ticks after the fault, or detected before that many (the response
+  drops the thruster: its commands stop at the detection; ``detected_sooner`` counts them),
+  the detection rate, and the latency from the first command acting after the fault
+  (``latency_from_command_s``), p50 / p90 / max.
 
 The confusion matrix counts, for fault runs, the injected (thruster, kind) against what the
 first detection after the fault named: a thruster, a group (its own column, "one of {...}"),
@@ -247,12 +249,17 @@ def campaign_statistics(rows: list[dict[str, Any]]) -> dict[str, Any]:
                             sum(abs(e) <= FRACTION_TOL for e in errs), len(obs)),
                         "tolerance": FRACTION_TOL,
                         "mean_signed": None if not errs else round(float(np.mean(errs)), 4)}
+                # A run detected before the thruster's third command is in it too: the
+                # response drops the thruster, so its commands stop at the detection (a test
+                # pulse names a thruster that failed after one burn and one pulse).
+                early = [r for r in obs if r["verdict"] == "detected" and
+                         (r.get("commanded_ticks_after_fault") or 0) < GOAL_COMMANDED_TICKS]
                 goal = [r for r in obs if (r.get("commanded_ticks_after_fault") or 0)
-                        >= GOAL_COMMANDED_TICKS]
+                        >= GOAL_COMMANDED_TICKS] + early
                 if any(r.get("commanded_ticks_after_fault") is not None for r in obs):
                     gdet = [r for r in goal if r["verdict"] == "detected"]
                     st["commanded_goal"] = {
-                        "min_ticks": GOAL_COMMANDED_TICKS,
+                        "min_ticks": GOAL_COMMANDED_TICKS, "detected_sooner": len(early),
                         "detection": _rate(len(gdet), len(goal)),
                         "latency_from_command_s": _pct([r["latency_from_command_s"]
                                                         for r in gdet])}

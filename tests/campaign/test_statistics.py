@@ -189,8 +189,9 @@ def test_incomplete_summary_is_a_failure_never_a_pass(change: dict, reason: str)
 
 def test_the_fails_to_fire_goal_counts_runs_commanded_three_ticks_and_times_from_the_command(
         ) -> None:
-    """The goal's population and latency: runs commanded on 3+ ticks after the fault, the
-    latency from the first command acting (the row's own figure, checked by hand here)."""
+    """The goal's population and latency: runs commanded on 3+ ticks after the fault or
+    detected sooner, the latency from the first command acting (the row's own figure, checked
+    by hand here)."""
     det = {"t_s": 6.0, "thruster": "A", "type": "fail_to_fire", "latency_s": 2.0,
            "correct": True}
     r = classify(SPEC, _summary(detections=[det], missed_faults=[]), commanded_after=True,
@@ -202,11 +203,16 @@ def test_the_fails_to_fire_goal_counts_runs_commanded_three_ticks_and_times_from
     few = dict(r, run=2, commanded_ticks_after_fault=2, latency_from_command_s=9.0)
     miss = classify(SPEC, _summary(), commanded_after=True, commanded_ticks=4,
                     first_command_s=4.6)
-    rows += [late, few, dict(miss, run=3)]
+    few_missed = classify(SPEC, _summary(), commanded_after=True, commanded_ticks=2,
+                          first_command_s=4.6)
+    rows += [late, few, dict(miss, run=3), dict(few_missed, run=4)]
     g = campaign_statistics(rows)["by_vehicle"]["v"]["fail_to_fire"]["commanded_goal"]
     assert g["min_ticks"] == 3
-    assert (g["detection"]["k"], g["detection"]["n"]) == (2, 3)  # run 2 is not in it
-    assert g["latency_from_command_s"]["max"] == 2.5
+    # run 2, detected after 2 commands (the response ends them), is in it; run 4, missed
+    # with 2 commands, is not
+    assert (g["detection"]["k"], g["detection"]["n"]) == (3, 4)
+    assert g["detected_sooner"] == 1
+    assert g["latency_from_command_s"]["max"] == 9.0
     # Rows of an older campaign (no command counts) carry no goal figures.
     old = [{k: v for k, v in x.items() if k != "commanded_ticks_after_fault"} for x in rows]
     assert "commanded_goal" not in campaign_statistics(old)["by_vehicle"]["v"]["fail_to_fire"]

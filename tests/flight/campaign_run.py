@@ -29,16 +29,17 @@ def campaign_run(tmp_path: Path, campaign: str, run: int,
 
 
 def named_first_and_not_without(tmp_path: Path, campaign: str, run: int, thruster: str,
-                                kind: str, within_s: float, off: dict[str, Any]):
-    """Run ``run`` of ``campaign``: its fault is ``kind`` of ``thruster``, the first detection
-    names it so within ``within_s`` of the fault, and with the ``off`` detector overrides
-    nothing is named in the run (the oracle that the mechanism can fail). Returns (the spec,
-    the first detection)."""
-    spec, r = campaign_run(tmp_path, campaign, run)
+                                kind: str, within_s: float, off: dict[str, Any],
+                                on: dict[str, Any] | None = None):
+    """Run ``run`` of ``campaign`` (with the ``on`` detector overrides): its fault is ``kind``
+    of ``thruster``, the first detection names it so within ``within_s`` of the fault, and
+    with the ``off`` overrides as well nothing is named in the run (the oracle that the
+    mechanism can fail). Returns (the spec, the first detection)."""
+    spec, r = campaign_run(tmp_path, campaign, run, detector=on)
     assert (spec.fault["kind"], spec.fault["thruster"]) == (kind, thruster)
     dets = r.summary["detections"]
     assert dets and (dets[0]["thruster"], dets[0]["type"]) == (thruster, kind), dets
     assert 0.0 <= dets[0]["t_s"] - spec.fault["t_s"] < within_s, dets
-    _, r0 = campaign_run(tmp_path / "off", campaign, run, detector=off)
+    _, r0 = campaign_run(tmp_path / "off", campaign, run, detector={**(on or {}), **off})
     assert r0.summary["detections"] == [], r0.summary["detections"]
     return spec, dets[0]

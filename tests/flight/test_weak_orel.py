@@ -17,6 +17,9 @@ from hil.config import load_vehicle
 from tests.flight.campaign_run import campaign_run, named_first_and_not_without
 
 H = 0.2
+# The closed loops read the burn-fraction test itself: without orel's test pulses, which judge
+# what it names (docs/design.md 6.5; tests/flight/test_pulse_test.py).
+NO_PULSES = {"pulse_test_below": "null"}
 
 
 def _named(theta: np.ndarray, n_ticks: int, seed: int) -> set[int]:
@@ -61,7 +64,8 @@ def test_closed_loop_orel_fails_to_fire_pulsed_inside_the_dead_zone(tmp_path) ->
     relative dead zone (2.2e-3). Named fails to fire within 5 s; with the test off nothing is
     named in the run (the oracle: the test can fail)."""
     named_first_and_not_without(tmp_path, "orel-fails", 278, "20", "fail_to_fire", 5.0,
-                                off={"weak_below": "null", "weak_degraded_below": "null"})
+                                off={"weak_below": "null", "weak_degraded_below": "null"},
+                                on=NO_PULSES)
 
 
 def test_the_raw_burns_must_fall_short_too() -> None:
@@ -153,7 +157,8 @@ def test_closed_loop_orel_degraded_named_by_the_second_tier(tmp_path) -> None:
     degraded by the second tier within 10 s, its fraction within 0.1 of the fault's; with the
     tier off nothing is named in the run (the oracle: the tier can fail)."""
     spec, first = named_first_and_not_without(tmp_path, "orel-fails", 143, "12", "degraded",
-                                              10.0, off={"weak_degraded_below": "null"})
+                                              10.0, off={"weak_degraded_below": "null"},
+                                              on=NO_PULSES)
     assert abs(first["fraction"] - spec.fault["fraction"]) < 0.1, first
 
 
@@ -161,11 +166,11 @@ def test_closed_loop_the_degraded_tier_reads_nothing_of_the_initial_slew(tmp_pat
     """orel-stuck run 116 (27 stuck on at 12.5 s): nothing is named before the fault. With
     the tier reading the initial slew's burns too (``weak_degraded_after_s: 0``), a healthy
     14 is named degraded at 8.8 s (the oracle: the guard can fail)."""
-    spec, r = campaign_run(tmp_path, "orel-stuck", 116)
+    spec, r = campaign_run(tmp_path, "orel-stuck", 116, NO_PULSES)
     t_fault = spec.fault["t_s"]
     assert not [d for d in r.summary["detections"] if d["t_s"] < t_fault], r.summary
     _, r0 = campaign_run(tmp_path / "all", "orel-stuck", 116,
-                         detector={"weak_degraded_after_s": 0.0})
+                         detector={**NO_PULSES, "weak_degraded_after_s": 0.0})
     first = r0.summary["detections"][0]
     assert (first["thruster"], first["type"]) == ("14", "degraded"), r0.summary["detections"]
     assert first["t_s"] < t_fault
