@@ -319,6 +319,11 @@ class FlightSoftware:
         self._pulse_end: dict[int, int] = {}  # the tick each thruster's last test ended
         self._pulse_frac: float | None = None  # what the pulses read, when they named it
         self._pulse_queue: list[int] = []  # thrusters waiting for their test
+        self._pulse_len_ms = self._pulse_ms()
+        # the thrusters whose pulse moves the rate by _PULSE_MEASURABLE dead zones at least
+        # (orel's middle belt, 1 in 100 ms, is left to the other tests)
+        self._pulse_testable = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) \
+            * self._pulse_len_ms / 1000.0 >= _PULSE_MEASURABLE * dc.dead_zone_rad_s
         # (raw residual, burns, variance) of the last ticks, for the leak-fit test
         self._leak_window: list[tuple[np.ndarray, np.ndarray, float]] = []
         self._leak_streak: tuple[int, int] = (-1, 0)  # (thruster, ticks in a row)
@@ -1034,14 +1039,12 @@ class FlightSoftware:
                     if self._weak is not None:
                         self._weak_read = (dc.weak_burns, 0, True)
         if dc.pulse_test_below is not None:
-            if self._weak is not None and self._pulse_testable()[self._weak]:
+            if self._weak is not None and self._pulse_testable[self._weak]:
                 # The burn-fraction test's finding is a candidate too: the pulses judge it (a
                 # healthy 16 that a test had read at 0.92 was named degraded 0.45 by the
                 # degraded tier 5.6 s later, orel-envelope run 388).
                 j, self._weak = self._weak, None
-                every = int(round(dc.pulse_test_every_s / self.h))
-                if self._pulse is None and tick == self._tick and \
-                        self._tick - self._pulse_end.get(j, -10**9) >= every:
+                if self._pulse is None and tick == self._tick and self._pulse_due(j):
                     self._pulse_queue = [j]
                     self._pulse_next()
             self._pulse_step(eps, pred, avail, raw, tick)
@@ -1101,12 +1104,10 @@ class FlightSoftware:
                 self._gyro_suspect() or self._burn_settling() or self.fdir.safe_mode or \
                 tick != self._tick:
             return
-        every = int(round(dc.pulse_test_every_s / self.h))
         found = []
-        for j in np.flatnonzero(avail & self.fdir.available & self._pulse_testable()):
+        for j in np.flatnonzero(avail & self.fdir.available & self._pulse_testable):
             read = self.effectiveness.last_burn(int(j))
-            if read is not None and max(read) < dc.pulse_test_below and \
-                    self._tick - self._pulse_end.get(int(j), -10**9) >= every:
+            if read is not None and max(read) < dc.pulse_test_below and self._pulse_due(int(j)):
                 found.append((read[0], int(j)))
         self._pulse_queue = [j for _, j in sorted(found)[:_PULSE_CANDIDATES]]
         self._pulse_next()
@@ -1128,11 +1129,10 @@ class FlightSoftware:
         else:
             self._pulse_queue = []
 
-    def _pulse_testable(self) -> np.ndarray:
-        """(N,) bool: the thrusters whose test pulse moves the rate by ``_PULSE_MEASURABLE``
-        dead zones at least (orel's middle belt, 1 in 100 ms, is left to the other tests)."""
-        return np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) * self._pulse_ms() / 1000.0 \
-            >= _PULSE_MEASURABLE * self.detector.cfg.dead_zone_rad_s
+    def _pulse_due(self, j: int) -> bool:
+        """Whether thruster ``j``'s last judged test ended ``pulse_test_every_s`` ago or more."""
+        every = int(round(self.detector.cfg.pulse_test_every_s / self.h))
+        return self._tick - self._pulse_end.get(j, -10**9) >= every
 
     def _pulse_ms(self) -> int:
         """The test pulse (ms): ``pulse_test_ms`` in whole quanta, at least the minimum
@@ -1444,7 +1444,7 @@ class FlightSoftware:
             self._alloc = None
             self._on_ms = np.zeros(self.n, dtype=int)
             if _pulse_fires(i) and i < _pulse_ticks(self.detector.cfg.pulse_test_count) - 1:
-                self._on_ms[p["j"]] = self._pulse_ms()
+                self._on_ms[p["j"]] = self._pulse_len_ms
             return
         d = self._demand
         oc = self.orbit_correction
