@@ -378,7 +378,8 @@ class DetectorCfg(_Model):
     # fails to fire below fail_fraction). A thruster commanded on a few ticks only (orel fires
     # a belt thruster in bursts of several) gives too few burns for the burn-fraction test; a
     # lone pulse is read against the sensor and the structure, not against its neighbours'
-    # errors. Thrusters whose pulse moves the rate by less than 4 dead zones are not tested.
+    # errors. Thrusters whose pulse moves the rate by less than ``pulse_test_dead_zones`` dead
+    # zones are not tested.
     # Short pulses read low (the thrust's rise is not over when the valve closes: 60 ms
     # pulses of a healthy roll thruster read 0.5-0.6). None: off.
     pulse_test_below: float | None = Field(default=None, gt=0.0, lt=1.0)
@@ -386,6 +387,24 @@ class DetectorCfg(_Model):
     pulse_test_ms: float = Field(default=100.0, gt=0.0, le=10000.0)
     pulse_test_count: int = Field(default=2, ge=1, le=10)
     pulse_test_every_s: float = Field(default=30.0, ge=0.0, le=3600.0)
+    pulse_test_dead_zones: float = Field(default=4.0, ge=0.0, le=100.0)
+    # One read at ``pulse_test_clear`` or above clears the thruster at once (None: at
+    # ``pulse_test_healthy``); below it, the test goes on to ``pulse_test_count`` reads and
+    # judges their mean against ``pulse_test_healthy``.
+    pulse_test_clear: float | None = Field(default=None, gt=0.0, le=2.0)
+    # A thruster whose last ``pulse_test_suspect_burns`` burns (measurable, and the small ones
+    # summed) average below ``pulse_test_suspect_below`` (None: ``pulse_test_below``) on both
+    # residuals is tested too (a suspicion, not a finding: the burn-fraction tiers ask 3
+    # standard errors). None: off.
+    pulse_test_suspect_burns: int | None = Field(default=None, ge=2, le=200)
+    pulse_test_suspect_below: float | None = Field(default=None, gt=0.0, lt=1.5)
+    # A test that a suspicion started (one burn, or the last few, short), not a burn-fraction
+    # tier's finding, names the thruster when its reads' mean is below this (None:
+    # ``pulse_test_healthy``): the weaker the evidence before the test, the lower its bar.
+    pulse_test_suspect_healthy: float | None = Field(default=None, gt=0.0, lt=1.0)
+    # A thruster the pulses name is named fails to fire below this fraction (None:
+    # fail_fraction): what a dead thruster's pulses read, which need not be 0.
+    pulse_test_fail_below: float | None = Field(default=None, ge=0.0, lt=1.0)
     # With the learnt dead zone (relative_dead_zone_sigma): the flex a change of the burns
     # puts into the gyro at once, as a standard deviation per axis of this share of the change
     # of the burning thrusters' rate change along that axis (sum_j |mu_j,axis| eff_j) from

@@ -313,13 +313,15 @@ class Effectiveness:
         return float(np.clip(value, 0.0, 1.5))
 
     def update(self, residual_B_rad_s: np.ndarray, eff_s: np.ndarray, use: np.ndarray,
-               deff_dlat: np.ndarray | None = None, raw_B_rad_s: np.ndarray | None = None) -> None:
+               deff_dlat: np.ndarray | None = None, raw_B_rad_s: np.ndarray | None = None,
+               learn: bool = True) -> None:
         """One tick: ``eff_s`` (N,) equivalent burn in the interval, ``use`` (N,) bool
         (available); ``residual`` measured minus predicted with the current ``k`` and the
         current ``latency_s``; ``deff_dlat`` (N,) the change of ``eff_s`` per second of extra
         command latency (the onboard model's, ``OnboardModel.latency_sensitivity``);
         ``raw_B_rad_s`` the same tick's raw residual (before the observer), whose burn
-        fractions ``weak`` reads with ``raw``; it is not learnt from."""
+        fractions ``weak`` reads with ``raw``; it is not learnt from. ``learn`` False: the
+        burns' fractions are kept, the thrust scales, leaks and latency are not updated."""
         n = self.n
         lat = self.latency_bound_s > 0.0 and deff_dlat is not None
         # eff may be negative for an integrating gyro (the change of the mean burn): the thrust
@@ -376,7 +378,7 @@ class Effectiveness:
                         self._chunks_raw[j].append((stamp, c[2] / c[0]))
                         del self._chunks_raw[j][:-self.kept]
                     self._chunk[j] = [0.0, 0.0, 0.0]
-        if self.bound <= 0.0:
+        if self.bound <= 0.0 or not learn:
             return  # learning off: only the measured fraction above
         d = np.diag_indices(len(self.x))
         self.P[d] = np.minimum(np.diag(self.P) + self.q, self.p0)

@@ -107,8 +107,6 @@ _FIT_SKIP_BURN = 1.0
 _PROBE_TICKS = 2
 # Test pulses (DetectorCfg.pulse_test_below): candidates queued from one tick's burns.
 _PULSE_CANDIDATES = 3
-# ... and only of thrusters whose pulse moves the rate by this many dead zones at least.
-_PULSE_MEASURABLE = 4.0
 # A test starts with this many quiet ticks: the first holds the tail of the burst before it
 # and the ringing it starts (read against it, a healthy thruster's first pulse read below 0.6
 # in 8 % of orel-envelope's tests, its later ones in 1 %).
@@ -317,13 +315,17 @@ class FlightSoftware:
         # thruster's burn of each test tick read so far, what its pulses read.
         self._pulse: dict | None = None
         self._pulse_end: dict[int, int] = {}  # the tick each thruster's last test ended
+        self._pulse_sample = -1  # the last sample that answers a test's tick
+        # thrusters a suspicion's test cleared below pulse_test_healthy: a tier's finding of
+        # one is tested again at once, against pulse_test_healthy
+        self._pulse_doubt: set[int] = set()
         self._pulse_frac: float | None = None  # what the pulses read, when they named it
         self._pulse_queue: list[int] = []  # thrusters waiting for their test
         self._pulse_len_ms = self._pulse_ms()
-        # the thrusters whose pulse moves the rate by _PULSE_MEASURABLE dead zones at least
+        # the thrusters whose pulse moves the rate by pulse_test_dead_zones dead zones at least
         # (orel's middle belt, 1 in 100 ms, is left to the other tests)
         self._pulse_testable = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) \
-            * self._pulse_len_ms / 1000.0 >= _PULSE_MEASURABLE * dc.dead_zone_rad_s
+            * self._pulse_len_ms / 1000.0 >= dc.pulse_test_dead_zones * dc.dead_zone_rad_s
         # (raw residual, burns, variance) of the last ticks, for the leak-fit test
         self._leak_window: list[tuple[np.ndarray, np.ndarray, float]] = []
         self._leak_streak: tuple[int, int] = (-1, 0)  # (thruster, ticks in a row)
@@ -346,6 +348,9 @@ class FlightSoftware:
         # the next ticks tell the neighbours apart (DetectorCfg.alike_wait_ticks)
         self._alike_hold: tuple[Detection, list[int], float, int] | None = None
         self.unconfirmed_stuck_on = 0
+        # the test pulses so far (DetectorCfg.pulse_test_below): started, ended healthy, ended
+        # naming the thruster, ended without a verdict; ticks the controller waited for them
+        self.pulse_tests = {"started": 0, "healthy": 0, "named": 0, "void": 0, "ticks": 0}
         self._gyro_settle = 0  # ticks left of the settling after a gyro resynchronisation
         self._w_prev: np.ndarray | None = None
         self.fdir = Fdir(fc.fdir, self.arrays.manifold_of, len(self.arrays.manifolds))
@@ -868,7 +873,9 @@ class FlightSoftware:
         are; ``(None, None)`` (nothing named now) when another thruster's leak explains the
         last ticks' residual better than i's deficit."""
         avail = self.fdir.available
-        if self._window:
+        if self._window and self._pulse_frac is None:
+            # (A test's pulses fired i alone between quiet ticks and were read against them: a
+            # leak of another thruster is on those too and cancels.)
             # A thruster stuck on and fought by i takes from i's burns too, and while i burns
             # on every tick the timing cannot tell them apart; the direction can: a deficit of
             # i moves the rate against i's direction only, a leak of j along j's. Over the last
@@ -891,7 +898,10 @@ class FlightSoftware:
         else:
             frac = float(self.effectiveness.fraction[i] if read is None
                          else self.effectiveness.burn_mean(i, read[0], read[1], small=read[2]))
-        kind = DEGRADED if frac >= self.detector.cfg.fail_fraction else FAIL_TO_FIRE
+        dc = self.detector.cfg
+        fail = dc.fail_fraction if pulsed is None or dc.pulse_test_fail_below is None \
+            else dc.pulse_test_fail_below
+        kind = DEGRADED if frac >= fail else FAIL_TO_FIRE
         group = tuple(j for j in self.detector.groups[i] if avail[j])
         found = Detection(tick=self._tick, thruster=i, kind=kind, group=group,
                           names=tuple(self.arrays.names[j] for j in group), rho=frac,
@@ -957,7 +967,11 @@ class FlightSoftware:
                                  np.asarray(dw if raw is None else raw, dtype=float),
                                  self.effectiveness.updates))
             del self._window[:-_ISOLATION_TICKS]
-            if self.detector.cfg.leak_fit_min is not None:  # only for the leak-fit test
+            if self.detector.cfg.leak_fit_min is not None and tick > self._pulse_sample:
+                # only for the leak-fit test, and not on a test's ticks: every thruster is
+                # closed on them but the one pulsed, and what its pulses leave unexplained
+                # (their tails, the flex they ring) fits some thruster's leak (iss_rs-envelope
+                # run 329: SM-yaw_I named stuck on 6 s after three tests)
                 # Each tick's variance: the noise (a third of the dead zone) and what the
                 # learning does not know yet of the burning thrusters' thrust (weighted fit).
                 var = (self.detector.dead_zone_rad_s() / 3.0) ** 2 + float(np.trace(
@@ -1009,7 +1023,10 @@ class FlightSoftware:
         """One tick of the effectiveness learning (and the latency it may learn); ``raw`` the
         tick's raw residual, for the burn-fraction test's ``weak_raw``; ``tick`` the tick whose
         sample this is (the test pulse reads the sample after its pulse)."""
-        self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat, raw_B_rad_s=raw)
+        # A test's samples are kept as burns (a dead thruster's pulses read 0 there) but teach
+        # the scales, leaks and latency nothing (docs/design.md 6.5).
+        self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat, raw_B_rad_s=raw,
+                                  learn=tick is None or tick > self._pulse_sample)
         dc = self.detector.cfg
         if dc.weak_below is not None:
             if self._burn_settling():
@@ -1044,9 +1061,11 @@ class FlightSoftware:
                 # healthy 16 that a test had read at 0.92 was named degraded 0.45 by the
                 # degraded tier 5.6 s later, orel-envelope run 388).
                 j, self._weak = self._weak, None
-                if self._pulse is None and tick == self._tick and self._pulse_due(j):
+                if self._pulse is None and tick == self._tick and \
+                        (self._pulse_due(j) or j in self._pulse_doubt):
+                    self._pulse_doubt.discard(j)
                     self._pulse_queue = [j]
-                    self._pulse_next()
+                    self._pulse_next(found=True)
             self._pulse_step(eps, pred, avail, raw, tick)
         if pred.deff_dlat is not None:
             self.model.set_latency_offset(self.effectiveness.latency_s)
@@ -1089,15 +1108,18 @@ class FlightSoftware:
                 dw = p["raw"][k] - 0.5 * (p["raw"][k - 1] + p["raw"][k + 1])
                 p["reads"].append(float(self.effectiveness.k[j]) + float(dw @ mu) / c)
             reads = p["reads"]
-            if reads and max(reads) >= dc.pulse_test_healthy:
+            clear = dc.pulse_test_healthy if dc.pulse_test_clear is None else dc.pulse_test_clear
+            if reads and max(reads) >= clear:
                 self._pulse_over(j)  # healthy
             elif len(reads) >= dc.pulse_test_count:
                 mean = float(np.mean(reads))
-                if mean < dc.pulse_test_healthy and self._weak is None:
+                if mean < p["bar"] and self._weak is None:
                     self._pulse_over(j, next_one=False)
                     self._weak, self._weak_read = j, None
                     self._pulse_frac = float(np.clip(mean, 0.0, 1.5))
                 else:
+                    if mean < dc.pulse_test_healthy:
+                        self._pulse_doubt.add(j)
                     self._pulse_over(j)
             return
         if self.detector.latched is not None or self._probe is not None or \
@@ -1109,19 +1131,35 @@ class FlightSoftware:
             read = self.effectiveness.last_burn(int(j))
             if read is not None and max(read) < dc.pulse_test_below and self._pulse_due(int(j)):
                 found.append((read[0], int(j)))
+        if not found and dc.pulse_test_suspect_burns is not None:
+            use = avail & self.fdir.available & self._pulse_testable
+            use &= np.array([self._pulse_due(int(j)) for j in range(self.n)])
+            below = dc.pulse_test_below if dc.pulse_test_suspect_below is None \
+                else dc.pulse_test_suspect_below
+            j = self.effectiveness.weak(below, 0.0, dc.pulse_test_suspect_burns, use, raw=True,
+                                        small=True)
+            if j is not None:
+                found.append((0.0, int(j)))
         self._pulse_queue = [j for _, j in sorted(found)[:_PULSE_CANDIDATES]]
         self._pulse_next()
 
-    def _pulse_next(self) -> None:
-        """Start the test of the next queued thruster (fired on this tick's allocation)."""
+    def _pulse_next(self, found: bool = False) -> None:
+        """Start the test of the next queued thruster (fired on this tick's allocation);
+        ``found``: a burn-fraction tier named it (its mean is judged against
+        ``pulse_test_healthy``; a suspicion's against ``pulse_test_suspect_healthy``)."""
         if self._pulse_queue:
+            dc = self.detector.cfg
+            bar = dc.pulse_test_healthy if found or dc.pulse_test_suspect_healthy is None \
+                else dc.pulse_test_suspect_healthy
+            self.pulse_tests["started"] += 1
             self._pulse = {"j": self._pulse_queue.pop(0), "start": self._tick, "raw": {},
-                           "eff": {}, "read": set(), "reads": []}
+                           "eff": {}, "read": set(), "reads": [], "bar": bar}
 
     def _pulse_over(self, j: int, next_one: bool = True, judged: bool = True) -> None:
         """Thruster ``j``'s test ended (``judged``: healthy or named; else abandoned, and it
         may be tested again at once); the next queued one starts (``next_one``)."""
         self._pulse = None
+        self.pulse_tests["void" if not judged else "healthy" if next_one else "named"] += 1
         if judged:
             self._pulse_end[j] = self._tick
         if next_one:
@@ -1136,12 +1174,15 @@ class FlightSoftware:
 
     def _pulse_ms(self) -> int:
         """The test pulse (ms): ``pulse_test_ms`` in whole quanta, at least the minimum
-        firing, at most half the tick (it ends before the next sample)."""
+        firing, at most the tick less the electrical delay and the off lag (the thrust is
+        over by the next sample at the nominal latency)."""
         t = self.vehicle.timing
+        tp = self.vehicle.thrust_profile
         q = float(t.pwm_quantum_ms)
         ms = q * math.floor(self.detector.cfg.pulse_test_ms / q + 1e-9)
         lo = q * math.ceil(float(t.min_on_ms) / q - 1e-9)
-        hi = q * math.floor(500.0 * self.h / q + 1e-9)
+        room = 1000.0 * self.h - float(tp.electrical_delay_ms) - float(tp.off_lag_ms)
+        hi = q * math.floor(room / q + 1e-9)
         return int(min(max(ms, lo), hi))
 
     def _burn_settling(self) -> bool:
@@ -1443,6 +1484,8 @@ class FlightSoftware:
             # thruster waits.
             self._alloc = None
             self._on_ms = np.zeros(self.n, dtype=int)
+            self.pulse_tests["ticks"] += 1
+            self._pulse_sample = self._tick + 1
             if _pulse_fires(i) and i < _pulse_ticks(self.detector.cfg.pulse_test_count) - 1:
                 self._on_ms[p["j"]] = self._pulse_len_ms
             return

@@ -274,6 +274,8 @@ class FlightShell:
             "no_evidence_ticks": self.no_evidence,
             "gyro_saturated_ticks": self.gyro_saturated_ticks,
         }
+        if self.fs.detector.cfg.pulse_test_below is not None:
+            rec["pulse_tests"] = dict(self.fs.pulse_tests)
         if self.fdir_actions:
             rec["fdir_actions"] = self.fdir_actions
         if self.bus_new:

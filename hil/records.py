@@ -108,6 +108,8 @@ class FlightRecord(TypedDict):
     no_evidence_ticks: NotRequired[int]
     # ticks so far whose gyro sample was clipped to the GYRO range (hil.binding.saturated)
     gyro_saturated_ticks: NotRequired[int]
+    # with test pulses configured: the tests so far (FlightSoftware.pulse_tests)
+    pulse_tests: NotRequired[dict[str, int]]
     faults_injected: NotRequired[list[FaultEvent]]
 
 

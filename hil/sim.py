@@ -106,7 +106,10 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
         })
         det = (None if out.detection is None
                else detection_record(out.detection, n, h, names))
-        flight_recs.append({"tick": n, "t_s": round(t_n, 6), "detection": det})
+        rec: dict[str, Any] = {"tick": n, "t_s": round(t_n, 6), "detection": det}
+        if fs.detector.cfg.pulse_test_below is not None:
+            rec["pulse_tests"] = dict(fs.pulse_tests)
+        flight_recs.append(rec)
         if keep:
             outputs.append(out)
             truths.append(tr)

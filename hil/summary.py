@@ -268,6 +268,8 @@ def summarise(
         # what the FDIR did about its detections (process runs: hil.records.fdir_actions)
         "fdir_actions": [a for r in flight_records for a in r.get("fdir_actions", [])],
     }
+    if "pulse_tests" in last_flight:
+        summary["pulse_tests"] = dict(last_flight["pulse_tests"])
     safety = {**_first(plant_records, "config").get("safety", {}),
               **_first(flight_records, "config").get("safety", {})}
     if safety:

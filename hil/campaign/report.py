@@ -204,6 +204,18 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
                       "fault named):", "", "| injected | named | runs |", "|---|---|---|"]
                 L += [f"| {c['injected']} | {c['named']} | {c['runs']} |" for c in conf]
                 L.append("")
+        pulsed = [k for k in vs if "pulse_tests" in vs[k]]
+        if pulsed:
+            L += ["Test pulses (a suspected thruster fired alone between quiet ticks; the "
+                  "controller waits on the test's ticks):", "",
+                  "| runs of | runs with a test | tests | healthy / named / no verdict | "
+                  "ticks waited per run p50 / p90 / max |", "|---|---|---|---|---|"]
+            for k in pulsed:
+                pt = vs[k]["pulse_tests"]
+                L.append(f"| {k} | {pt['runs_with_tests']} of {vs[k]['completed']} | "
+                         f"{pt['started']} | {pt['healthy']} / {pt['named']} / {pt['void']} | "
+                         f"{_fmt_lat(pt['wait_ticks_per_run'])} |")
+            L.append("")
     if stats["failures"]:
         L += ["## Failed runs", "", "| run | verdict | why |", "|---|---|---|"]
         L += [f"| {f['run']} | {f['verdict']} | {str(f['why']).replace('|', '/')} |"

@@ -132,7 +132,7 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
         "first_command_after_fault_s": first_command_s, "latency_from_command_s": None,
         "fraction_error": None,
         "max_attitude_error_deg": None,
-        "max_rate_error_deg_s": None, "fuel_kg": None, "sim_s": None,
+        "max_rate_error_deg_s": None, "fuel_kg": None, "sim_s": None, "pulse_tests": None,
     }
     if error is not None or summary is None:
         row["verdict"] = "error"
@@ -148,7 +148,8 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
     row.update(detections=dets, false_alarms=len(summary["false_alarms"]),
                max_attitude_error_deg=summary["max_attitude_error_deg"],
                max_rate_error_deg_s=summary["max_rate_error_deg_s"],
-               fuel_kg=summary["fuel_kg"], sim_s=summary.get("sim_s"))
+               fuel_kg=summary["fuel_kg"], sim_s=summary.get("sim_s"),
+               pulse_tests=summary.get("pulse_tests"))
     if f is None:
         row["verdict"] = "false_alarm" if dets else "pass"
         return row
@@ -263,6 +264,14 @@ def campaign_statistics(rows: list[dict[str, Any]]) -> dict[str, Any]:
                         "detection": _rate(len(gdet), len(goal)),
                         "latency_from_command_s": _pct([r["latency_from_command_s"]
                                                         for r in gdet])}
+            tested = [r["pulse_tests"] for r in done if r.get("pulse_tests")]
+            if tested:
+                # What the test pulses cost (the controller waits on their ticks) and found.
+                st["pulse_tests"] = {
+                    "runs_with_tests": sum(t["started"] > 0 for t in tested),
+                    **{k: sum(t[k] for t in tested)
+                       for k in ("started", "healthy", "named", "void")},
+                    "wait_ticks_per_run": _pct([t["ticks"] for t in tested])}
             vstats[cls] = st
         fault_rows = [r for rs in classes.values() for r in rs
                       if r["fault_class"] != "none" and r["verdict"] not in FAILED]

@@ -293,3 +293,24 @@ def test_a_degraded_detection_carries_its_fraction_error_and_the_goal_counts_the
     assert (fe["within_tolerance"]["k"], fe["within_tolerance"]["n"]) == (2, 4)
     assert fe["max"] == pytest.approx(0.25) and fe["n"] == 3
     assert fe["mean_signed"] == pytest.approx((-0.08 + 0.25 + 0.05) / 3, abs=1e-4)
+
+
+def test_the_test_pulses_of_the_runs_are_summed_per_fault_class() -> None:
+    """Each completed run's ``pulse_tests`` (its summary's) summed; the ticks the controller
+    waited, per run, as percentiles; runs without the counters (no pulses configured) and
+    failed runs are in no sum."""
+    def pt(started, healthy, named, void, ticks):
+        return {"started": started, "healthy": healthy, "named": named, "void": void,
+                "ticks": ticks}
+    rows = [_row(0, "degraded", "detected", latency=1.0, pulse_tests=pt(2, 1, 1, 0, 12)),
+            _row(1, "degraded", "missed", pulse_tests=pt(0, 0, 0, 0, 0)),
+            _row(2, "degraded", "missed", pulse_tests=pt(3, 1, 0, 2, 20)),
+            _row(3, "degraded", "error", error="boom", pulse_tests=pt(9, 9, 0, 0, 90)),
+            _row(4, "none", "pass")]
+    s = campaign_statistics(rows)["by_vehicle"]["v"]
+    got = s["degraded"]["pulse_tests"]
+    assert {k: got[k] for k in ("runs_with_tests", "started", "healthy", "named", "void")} \
+        == {"runs_with_tests": 2, "started": 5, "healthy": 2, "named": 1, "void": 2}
+    assert (got["wait_ticks_per_run"]["n"], got["wait_ticks_per_run"]["p50"],
+            got["wait_ticks_per_run"]["max"]) == (3, 12.0, 20.0)
+    assert "pulse_tests" not in s["none"]

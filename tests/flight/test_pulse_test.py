@@ -86,10 +86,13 @@ def test_a_pulse_between_quiet_samples_that_disagree_is_not_read() -> None:
     assert sum(int(c[j] > 0) for c in cmds) >= 2  # it pulsed, and read nothing
 
 
-def test_pulse_length_is_whole_quanta_within_the_minimum_firing_and_half_the_tick() -> None:
+def test_pulse_length_is_whole_quanta_within_the_minimum_firing_and_the_tick() -> None:
+    """At most the tick (200 ms) less the electrical delay (10) and the off lag (27), in
+    whole 10 ms quanta: 160 ms."""
     assert _software(pulse_test_below=0.5, pulse_test_ms=100.0)._pulse_ms() == 100
     assert _software(pulse_test_below=0.5, pulse_test_ms=10.0)._pulse_ms() == 30
-    assert _software(pulse_test_below=0.5, pulse_test_ms=500.0)._pulse_ms() == 100
+    assert _software(pulse_test_below=0.5, pulse_test_ms=500.0)._pulse_ms() == 160
+    assert _software(pulse_test_below=0.5, pulse_test_ms=150.0)._pulse_ms() == 150
     assert _software(pulse_test_below=0.5, pulse_test_ms=75.0)._pulse_ms() == 70
 
 
@@ -109,3 +112,58 @@ def test_closed_loop_orel_degraded_named_with_its_fraction(tmp_path) -> None:
                                             20.0, off={"pulse_test_below": "null"})
     assert det["source"] == "pulse_test"
     assert abs(det["fraction"] - spec.fault["fraction"]) < 0.1
+
+
+@pytest.mark.parametrize(("theta", "pulses", "named"), [(0.5, 3, True), (0.8, 3, False),
+                                                        (1.05, 1, False)])
+def test_with_a_clear_level_the_test_judges_the_mean_of_its_reads(theta, pulses,
+                                                                   named) -> None:
+    """``pulse_test_clear`` 1.0 and three reads (iss_rs's setting): a read at 1.0 or above
+    clears at once; below it the test goes on to three pulses and judges their mean against
+    0.6 (a single read of 0.8, which clears with the default, does not end the test)."""
+    fs = _software(pulse_test_below=0.5, pulse_test_count=3, pulse_test_clear=1.0)
+    j = [t.name for t in fs.vehicle.thrusters].index("9")
+    cmds = _run_test(fs, j, theta, np.full(3, 1e-4), 14)
+    assert sum(int(c[j] > 0) for c in cmds) == pulses
+    assert (fs._weak == j) is named
+    if named:
+        assert fs._pulse_frac == pytest.approx(theta, abs=1e-9)
+    else:
+        assert fs._pulse_end[j] == len(cmds) - 1
+
+
+def test_closed_loop_iss_rs_degraded_suspected_from_its_small_burns(tmp_path) -> None:
+    """iss_rs-fails run 73: SM+roll1_II degraded to 0.34 at 21.4 s; its burns are small (five
+    summed chunks in 55 s), never 20 for the degraded tier nor 3 standard errors: nothing is
+    named without the pulses. Its last four chunks average below half its thrust, it is
+    tested, and the three pulses name it degraded with the fraction within 0.1."""
+    spec, det = named_first_and_not_without(tmp_path, "iss_rs-fails", 73, "SM+roll1_II",
+                                            "degraded", 38.0, off={"pulse_test_below": "null"})
+    assert det["source"] == "pulse_test"
+    assert abs(det["fraction"] - spec.fault["fraction"]) < 0.1
+
+
+def test_closed_loop_iss_rs_fails_to_fire_suspected_from_its_small_burns(tmp_path) -> None:
+    """iss_rs-fails run 182: P2-pitch_I fails to fire at 33.8 s; named fails to fire by the
+    pulses within 10 s, nothing named in the run without them."""
+    spec, det = named_first_and_not_without(tmp_path, "iss_rs-fails", 182, "P2-pitch_I",
+                                            "fail_to_fire", 10.0,
+                                            off={"pulse_test_below": "null"})
+    assert det["source"] == "pulse_test"
+
+
+@pytest.mark.parametrize(("fail_below", "kind"), [(None, "degraded"), (0.25, "fail_to_fire")])
+def test_a_thruster_the_pulses_name_fails_to_fire_below_the_pulses_own_level(fail_below,
+                                                                             kind) -> None:
+    """Pulses that read 0.2: degraded against ``fail_fraction`` (0.15), failing against
+    ``pulse_test_fail_below`` 0.25 (a dead thruster's three reads average up to 0.28 on
+    iss_rs); the burn-fraction tiers' own findings keep ``fail_fraction``."""
+    fs = _software(pulse_test_below=0.5, pulse_test_fail_below=fail_below)
+    j = [t.name for t in fs.vehicle.thrusters].index("9")
+    fs._pulse_frac = 0.2
+    _, found = fs._weak_detection(j)
+    assert (found.kind, found.source, found.fraction) == (kind, "pulse_test", 0.2)
+    fs.effectiveness.x[j] = 0.2  # a tier's own finding at 0.2 (theta, no burns): degraded
+    _, found = fs._weak_detection(j)
+    assert (found.kind, found.source) == ("degraded", "effectiveness")
+    assert found.fraction == pytest.approx(0.2)

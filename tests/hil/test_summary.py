@@ -184,3 +184,18 @@ def test_a_gyro_fault_detection_matches_an_active_gyro_fault_only() -> None:
     assert [f["thruster"] for f in missed] == ["X+"]
     out, fa, _ = match_detections(faults, [{**det, "t_s": 10.0}])
     assert not out[0]["correct"] and len(fa) == 1
+
+
+def test_the_test_pulses_of_the_run_are_its_last_flight_records() -> None:
+    """``pulse_tests`` (cumulative in each flight record when test pulses are configured):
+    the summary keeps the last record's; a run without them has none."""
+    plant = _plant([0.0, 0.2], [0.1, 0.1], [0.0, 0.0])
+    flight = _flight(2)
+    flight[0]["pulse_tests"] = {"started": 1, "healthy": 0, "named": 0, "void": 0, "ticks": 2}
+    flight[1]["pulse_tests"] = {"started": 1, "healthy": 1, "named": 0, "void": 0, "ticks": 4}
+    s = summarise(scenario="s", vehicle="orel", mode="lockstep", plant_records=plant,
+                  flight_records=flight, expect=None)
+    assert s["pulse_tests"] == flight[1]["pulse_tests"]
+    bare = summarise(scenario="s", vehicle="generic", mode="lockstep", plant_records=plant,
+                     flight_records=_flight(2), expect=None)
+    assert "pulse_tests" not in bare
