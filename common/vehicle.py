@@ -405,6 +405,9 @@ class DetectorCfg(_Model):
     # A thruster the pulses name is named fails to fire below this fraction (None:
     # fail_fraction): what a dead thruster's pulses read, which need not be 0.
     pulse_test_fail_below: float | None = Field(default=None, ge=0.0, lt=1.0)
+    # False: a test's samples teach the learnt thrust scales, leaks and latency nothing and
+    # stay out of the leak-fit test's window (they are kept as burns either way).
+    pulse_test_learn: bool = True
     # With the learnt dead zone (relative_dead_zone_sigma): the flex a change of the burns
     # puts into the gyro at once, as a standard deviation per axis of this share of the change
     # of the burning thrusters' rate change along that axis (sum_j |mu_j,axis| eff_j) from

@@ -967,7 +967,7 @@ class FlightSoftware:
                                  np.asarray(dw if raw is None else raw, dtype=float),
                                  self.effectiveness.updates))
             del self._window[:-_ISOLATION_TICKS]
-            if self.detector.cfg.leak_fit_min is not None and tick > self._pulse_sample:
+            if self.detector.cfg.leak_fit_min is not None and self._learns_from(tick):
                 # only for the leak-fit test, and not on a test's ticks: every thruster is
                 # closed on them but the one pulsed, and what its pulses leave unexplained
                 # (their tails, the flex they ring) fits some thruster's leak (iss_rs-envelope
@@ -1026,7 +1026,7 @@ class FlightSoftware:
         # A test's samples are kept as burns (a dead thruster's pulses read 0 there) but teach
         # the scales, leaks and latency nothing (docs/design.md 6.5).
         self.effectiveness.update(eps, pred.eff_s, avail, pred.deff_dlat, raw_B_rad_s=raw,
-                                  learn=tick is None or tick > self._pulse_sample)
+                                  learn=self._learns_from(tick))
         dc = self.detector.cfg
         if dc.weak_below is not None:
             if self._burn_settling():
@@ -1166,6 +1166,11 @@ class FlightSoftware:
             self._pulse_next()
         else:
             self._pulse_queue = []
+
+    def _learns_from(self, tick: int | None) -> bool:
+        """Whether the sample of ``tick`` teaches the learnt scales and leaks and enters the
+        leak fit's window: not a test's sample with ``pulse_test_learn`` False."""
+        return self.detector.cfg.pulse_test_learn or tick is None or tick > self._pulse_sample
 
     def _pulse_due(self, j: int) -> bool:
         """Whether thruster ``j``'s last judged test ended ``pulse_test_every_s`` ago or more."""

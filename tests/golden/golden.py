@@ -19,9 +19,8 @@ ticks without thrust (S000-nofire, S002-50, S002-15: the same detections), and f
 when orel's flight came to test a thruster whose burn read short with pulses of it alone (19
 named fails to fire at 38.8 s by the pulses, was 38.6 s by the detector's crossing: the test
 holds the controller's commands, the crossing came from them), and for the nine orel and
-iss_rs scenarios when their flight records came to count the test pulses (``pulse_tests``) and
-a test's samples stopped teaching the effectiveness learning (REC-nofire's flight outputs
-moved, its truth and every detection of the nine did not);
+iss_rs scenarios when their flight records came to count the test pulses (``pulse_tests``;
+their truth, flight outputs and detections did not move);
 ``test_golden.py`` re-runs the scenarios and compares bit for bit.
 
 Every trace is computed in a child process under one numeric environment whatever the CPU
