@@ -99,12 +99,14 @@ def test_closed_loop_iss_rs_small_thruster_failing_is_named(tmp_path) -> None:
 
 
 def test_closed_loop_iss_rs_small_thruster_degraded_is_named_with_its_fraction(tmp_path) -> None:
-    """iss_rs-fails run 27: SM+roll2_II degraded to 0.36 at 33.4 s, its burns all small. Named
-    degraded by the degraded tier over the measurable and summed burns within 20 s, its
-    fraction within 0.1 of the fault's; without that tier nothing is named in the run."""
+    """iss_rs-fails run 27 (test pulses off): SM+roll2_II degraded to 0.36 at 33.4 s, its burns
+    all small. Named degraded by the degraded tier over the measurable and summed burns within
+    20 s, its fraction within 0.1 of the fault's; without that tier nothing is named in the
+    run."""
     from tests.flight.campaign_run import named_first_and_not_without
 
     spec, first = named_first_and_not_without(tmp_path, "iss_rs-fails", 27, "SM+roll2_II",
                                               "degraded", 20.0,
-                                              off={"weak_degraded_below": "null"})
+                                              off={"weak_degraded_below": "null"},
+                                              on={"pulse_test_below": "null"})
     assert abs(first["fraction"] - spec.fault["fraction"]) < 0.1, first
