@@ -312,6 +312,9 @@ class DetectorCfg(_Model):
             if getattr(self, name) is not None and self.leak_fit_min is None:
                 raise _FieldError(name, "none without leak_fit_min (it extends the leak-fit "
                                   "test)", getattr(self, name))
+        if self.pulse_test_suspect_below is not None and self.pulse_test_suspect_burns is None:
+            raise _FieldError("pulse_test_suspect_below", "none without pulse_test_suspect_burns "
+                              "(the suspicion's level)", self.pulse_test_suspect_below)
         if not self.leak_fit_short and self.leak_fit_long_ticks is None:
             raise _FieldError("leak_fit_short", "true without leak_fit_long_ticks (false leaves "
                               "the long fit alone)", self.leak_fit_short)

@@ -167,3 +167,16 @@ def test_a_thruster_the_pulses_name_fails_to_fire_below_the_pulses_own_level(fai
     _, found = fs._weak_detection(j)
     assert (found.kind, found.source) == ("degraded", "effectiveness")
     assert found.fraction == pytest.approx(0.2)
+
+
+
+def test_a_suspicion_level_without_the_suspicion_is_refused() -> None:
+    """``pulse_test_suspect_below`` without ``pulse_test_suspect_burns`` would be accepted and
+    ignored (the suspicion is off). The other pulse options stay accepted with
+    ``pulse_test_below`` null: one setting switches the tests off."""
+    from common.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"pulse_test_suspect_below: expected none without "
+                                          r"pulse_test_suspect_burns.*got 0.7"):
+        load_vehicle("generic", {"detector": {"pulse_test_below": 0.5,
+                                              "pulse_test_suspect_below": 0.7}})
