@@ -121,6 +121,35 @@ class AttitudeCfg(_Model):
         return np.concatenate(([math.cos(h)], math.sin(h) * a))
 
 
+class TurnCfg(_Model):
+    """One programmed turn: from ``at_s`` on, the target is ``attitude`` (relative to the
+    orbit frame). The flight takes it on the first tick at or after ``at_s``."""
+
+    at_s: NonNegFloat
+    attitude: AttitudeCfg
+
+
+# A programme long enough for a turn every tick of a long run would be a file nobody writes;
+# this bounds what a scenario can make the flight and the plant hold.
+MAX_TURNS = 10_000
+
+
+def turn_tick(at_s: float, tick_s: float) -> int:
+    """The first tick at or after ``at_s`` (the tick a turn takes effect on)."""
+    return int(math.ceil(at_s / tick_s - 1e-9))
+
+
+def target_at(target: np.ndarray, turns: list[tuple[int, np.ndarray]], tick: int) -> np.ndarray:
+    """The target quaternion in force at ``tick``: the last turn whose tick has come (turns
+    sorted by tick, as ``ScenarioCfg.programme_ticks`` gives them), else ``target``."""
+    q = target
+    for k, qk in turns:
+        if k > tick:
+            break
+        q = qk
+    return q
+
+
 class InitialCfg(_Model):
     attitude: AttitudeCfg = AttitudeCfg()
     rate_B_deg_s: Vec3 = (0.0, 0.0, 0.0)
@@ -237,6 +266,14 @@ class ScenarioCfg(_Model):
     ``safety`` (optional, ``SafetyCfg``)::
 
         safety: {thr_cmd_lost_ticks: 3, heartbeat_lost_s: 1.5, gyro_lost_ticks: 3}
+
+    ``programme`` (optional): programmed turns (seed 003's flight test was a programme of
+    turns), ``{at_s, attitude}`` in increasing time within the run, each the target from its
+    time on (``target`` before the first)::
+
+        programme:
+          - {at_s: 10.0, attitude: {axis: [0, 0, 1], angle_deg: 0.1}}
+          - {at_s: 13.2, attitude: {axis: [0, 0, 1], angle_deg: -0.1}}
     """
 
     # The name becomes the default output folder ``runs/<name>``: a safe set of characters,
@@ -249,6 +286,7 @@ class ScenarioCfg(_Model):
     seed: int = Field(default=1, ge=0, lt=2**63)
     initial: InitialCfg = InitialCfg()
     target: AttitudeCfg = AttitudeCfg()
+    programme: Annotated[list[TurnCfg], Field(max_length=MAX_TURNS)] = []
     plant: PlantOverridesCfg = PlantOverridesCfg()
     # Partial override of the vehicle's `flight:` section, merged key by key.
     flight: dict[str, Any] = {}
@@ -256,4 +294,22 @@ class ScenarioCfg(_Model):
     expect: ExpectationsCfg | None = None
     safety: SafetyCfg = SafetyCfg()
     bus: BusCfg | None = None
+
+    @model_validator(mode="after")
+    def _programme_in_order(self) -> ScenarioCfg:
+        last = -1.0
+        for i, turn in enumerate(self.programme):
+            if turn.at_s <= last:
+                raise _FieldError(f"programme[{i}].at_s",
+                                  f"a time after the previous turn's {last} s", turn.at_s)
+            if turn.at_s >= self.duration_s:
+                raise _FieldError(f"programme[{i}].at_s",
+                                  f"a time within the run (< duration_s {self.duration_s})",
+                                  turn.at_s)
+            last = turn.at_s
+        return self
+
+    def programme_ticks(self, tick_s: float) -> list[tuple[int, np.ndarray]]:
+        """The programme as (tick it takes effect on, target quaternion), in order."""
+        return [(turn_tick(t.at_s, tick_s), t.attitude.quaternion()) for t in self.programme]
 

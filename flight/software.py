@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from common.scenario import AttitudeCfg
+from common.scenario import AttitudeCfg, target_at
 from common.vehicle import VehicleArrays, VehicleCfg
 from flight.allocator import Allocation, Allocator
 from flight.attitude import AttitudeEstimate, propagate, q_rotate_inv
@@ -244,14 +244,16 @@ class FlightSoftware:
 
     ``target`` and ``initial_attitude``: ``AttitudeCfg`` or quaternions (4,) relative to the orbit
     frame (the initial attitude is what the flight believes at tick 0, e.g. from the star
-    tracker; default identity).
+    tracker; default identity). ``programme``: programmed turns, (tick, target quaternion (4,))
+    in increasing tick (``ScenarioCfg.programme_ticks``); from its tick on each is the target.
     """
 
     STAGES = ("observer", "detector", "controller", "allocator", "output")
 
     def __init__(self, vehicle: VehicleCfg, target: AttitudeCfg | np.ndarray | None = None,
                  initial_attitude: AttitudeCfg | np.ndarray | None = None,
-                 lead_s: float = 0.0) -> None:
+                 lead_s: float = 0.0,
+                 programme: list[tuple[int, np.ndarray]] | None = None) -> None:
         self.vehicle = vehicle
         # The controller acts on the state predicted this far ahead: the actuation phase, when
         # commands take effect that long after their sample (the onboard model's latency
@@ -263,7 +265,10 @@ class FlightSoftware:
         self.arrays = VehicleArrays.from_vehicle(vehicle)
         self.h = float(vehicle.timing.tick_s)
         self.n = len(self.arrays.names)
-        self.target_TO = _quat(target)
+        self.target_TO = self._target0 = _quat(target)
+        self._programme = [(int(k), _quat(q)) for k, q in (programme or [])]
+        if any(b[0] <= a[0] for a, b in zip(self._programme, self._programme[1:])):
+            raise ValueError("programme: expected turns in increasing tick")
         self.model = OnboardModel(vehicle)
         self.observer = AdaptiveObserver(fc.observer, self.h)
         dc = fc.detector
@@ -395,6 +400,8 @@ class FlightSoftware:
         if tick <= self._tick:
             raise ValueError(f"tick: expected > {self._tick}, got {tick}")
         self._tick = int(tick)
+        if self._programme:
+            self.target_TO = target_at(self._target0, self._programme, self._tick)
         self._y = np.asarray(gyro_B_rad_s, dtype=float).reshape(3)
         if not fresh and self._pred is not None:
             self._y = np.array(self._pred.omega_calc_B_rad_s, dtype=float).reshape(3)

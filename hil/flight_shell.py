@@ -79,7 +79,8 @@ def flight_software(sc: Scenario, phase_s: float):
     from flight.software import FlightSoftware
 
     return FlightSoftware(with_actuation_phase(sc.vehicle, phase_s), target=sc.cfg.target,
-                          initial_attitude=sc.cfg.initial.attitude, lead_s=phase_s)
+                          initial_attitude=sc.cfg.initial.attitude, lead_s=phase_s,
+                          programme=sc.cfg.programme_ticks(sc.vehicle.timing.tick_s))
 
 
 class FlightShell:

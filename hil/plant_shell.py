@@ -101,6 +101,7 @@ class PlantShell:
         self.last_gyro: Gyro | None = None
         self.safe = False
         self.target = sc.cfg.target.quaternion()
+        self.programme = sc.cfg.programme_ticks(sc.vehicle.timing.tick_s)
         self.last_cmd_tick_s = 0.0
         self.safety = safety_settings(sc, settings)
         self.cleared: list[dict] = []  # faults the panel ended since the last record
@@ -232,10 +233,12 @@ class PlantShell:
     # -- recording ----------------------------------------------------------------------------
 
     def record(self, tick: int, extra: dict | None = None) -> None:
+        from common.scenario import target_at
         from flight.attitude import error_quaternion, small_angle_vector
 
         tr = self.plant.truth
-        n_err = error_quaternion(self.target, tr.q_BO)
+        # the attitude error to the target the flight flew this tick (programmed turns)
+        n_err = error_quaternion(target_at(self.target, self.programme, tick), tr.q_BO)
         att = small_angle_vector(n_err) * DEG
         injected = newly_active_faults(self.plant.faults.entries, self.reported_faults, tr.t_s)
         injected = injected + self.bus_new

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from bus.codec import Gyro
+from common.scenario import target_at
 from common.units import DEG
 from hil.binding import gyro_message, over_the_wire, plant_command, saturated, thr_cmd
 from hil.config import Scenario, load_scenario
@@ -72,6 +73,7 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
     fs = flight_software(sc, phase)
     names = plant.arrays.names
     target = cfg.target.quaternion()
+    programme = cfg.programme_ticks(h)
     n_ticks = int(round(cfg.duration_s / h))
     reported: set[int] = set()
     plant_recs: list[dict[str, Any]] = []
@@ -101,7 +103,7 @@ def simulate(sc: Scenario | str | Path, *, keep: bool = False,
         injected = newly_active_faults(plant.faults.entries, reported, tr.t_s)
         plant_recs.append({
             "tick": n, "t_s": round(tr.t_s, 9), "faults_injected": injected,
-            **truth_fields(tr, error_quaternion(target, tr.q_BO)),
+            **truth_fields(tr, error_quaternion(target_at(target, programme, n), tr.q_BO)),
             "omega_deg_s": [float(x) * DEG for x in tr.omega_BO_B_rad_s],
         })
         det = (None if out.detection is None
