@@ -7,6 +7,7 @@ A scenario lives in ``configs/scenarios/<id>.yaml`` (read by the shell,
 
 from __future__ import annotations
 
+import bisect
 import math
 from typing import Annotated, Any, Literal
 
@@ -141,13 +142,10 @@ def turn_tick(at_s: float, tick_s: float) -> int:
 
 def target_at(target: np.ndarray, turns: list[tuple[int, np.ndarray]], tick: int) -> np.ndarray:
     """The target quaternion in force at ``tick``: the last turn whose tick has come (turns
-    sorted by tick, as ``ScenarioCfg.programme_ticks`` gives them), else ``target``."""
-    q = target
-    for k, qk in turns:
-        if k > tick:
-            break
-        q = qk
-    return q
+    sorted by tick, as ``ScenarioCfg.programme_ticks`` gives them; of two turns that fall on
+    one tick the later is flown), else ``target``."""
+    i = bisect.bisect_right(turns, tick, key=lambda turn: turn[0])
+    return turns[i - 1][1] if i else target
 
 
 class InitialCfg(_Model):

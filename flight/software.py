@@ -22,6 +22,7 @@ made at the end of tick n from the observer's estimate and those commands.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, replace
 
@@ -245,7 +246,8 @@ class FlightSoftware:
     ``target`` and ``initial_attitude``: ``AttitudeCfg`` or quaternions (4,) relative to the orbit
     frame (the initial attitude is what the flight believes at tick 0, e.g. from the star
     tracker; default identity). ``programme``: programmed turns, (tick, target quaternion (4,))
-    in increasing tick (``ScenarioCfg.programme_ticks``); from its tick on each is the target.
+    in tick order (``ScenarioCfg.programme_ticks``); from its tick on each is the target (of
+    two on one tick, the later).
     """
 
     STAGES = ("observer", "detector", "controller", "allocator", "output")
@@ -267,8 +269,8 @@ class FlightSoftware:
         self.n = len(self.arrays.names)
         self.target_TO = self._target0 = _quat(target)
         self._programme = [(int(k), _quat(q)) for k, q in (programme or [])]
-        if any(b[0] <= a[0] for a, b in zip(self._programme, self._programme[1:])):
-            raise ValueError("programme: expected turns in increasing tick")
+        if any(b[0] < a[0] for a, b in itertools.pairwise(self._programme)):
+            raise ValueError("programme: expected turns in tick order")
         self.model = OnboardModel(vehicle)
         self.observer = AdaptiveObserver(fc.observer, self.h)
         dc = fc.detector

@@ -38,9 +38,23 @@ def test_a_turn_takes_effect_on_the_first_tick_at_or_after_its_time() -> None:
 
 
 def test_the_flight_refuses_turns_out_of_order() -> None:
-    with pytest.raises(ValueError, match="increasing tick"):
+    with pytest.raises(ValueError, match="tick order"):
         FlightSoftware(load_vehicle("generic"),
-                       programme=[(5, _yaw(1.0).quaternion()), (5, _yaw(2.0).quaternion())])
+                       programme=[(5, _yaw(1.0).quaternion()), (4, _yaw(2.0).quaternion())])
+
+
+def test_of_two_turns_on_one_tick_the_later_is_flown(tmp_path) -> None:
+    # 1.0 s and 1.1 s both take effect on tick 6 (0.2 s ticks): valid times, one tick
+    p = tmp_path / "s.yaml"
+    p.write_text("name: s\nvehicle: generic\nduration_s: 3.0\nprogramme:\n"
+                 "  - {at_s: 1.1, attitude: {axis: [0, 0, 1], angle_deg: 1.0}}\n"
+                 "  - {at_s: 1.15, attitude: {axis: [0, 0, 1], angle_deg: 2.0}}\n")
+    sc = load_scenario(p)
+    fs = FlightSoftware(sc.vehicle, programme=sc.cfg.programme_ticks(0.2))
+    for n in range(7):
+        fs.step(n, np.zeros(3))
+    assert np.allclose(fs.target_TO, _yaw(2.0).quaternion())
+    assert simulate(sc).summary["run_failures"] == []
 
 
 @pytest.mark.parametrize("turns, where, expected", [
