@@ -90,6 +90,12 @@ def _print_summary(doc: dict[str, Any]) -> None:
                           f"detected sooner: {g.get('detected_sooner', 0)}): detected "
                           f"{_fmt_rate(g['detection'])}, from the first command p50/p90/max "
                           f"{_fmt_lat(g['latency_from_command_s'])}")
+                if "closed_goal" in st:
+                    g = st["closed_goal"]
+                    print(f"    commanded closed {g['min_ticks']}+ ticks after the fault (or "
+                          f"detected sooner: {g.get('detected_sooner', 0)}): detected "
+                          f"{_fmt_rate(g['detection'])}, from the first closed time "
+                          f"p50/p90/max {_fmt_lat(g['latency_from_closed_s'])}")
     if doc["failures"]:
         print(f"  failed runs: {len(doc['failures'])} (see report.md)")
 

@@ -113,6 +113,26 @@ def _commands_after(spec: RunSpec, col: _Collector) -> tuple[int, float | None] 
     return ticks, first
 
 
+def _closed_after(spec: RunSpec, col: _Collector) -> tuple[int, float | None] | None:
+    """For a stuck-on fault: the ticks on which the faulty thruster's valve was commanded
+    closed for part or all of the tick after the fault (the only ticks a stuck valve shows
+    on: the mirror of ``_commands_after``), and the plant time the first such closed time
+    began (a tick n's command acts from ``n h + latency`` for its on-time, and the valve is
+    meant closed from then to the tick's end); None for other faults."""
+    f = spec.fault
+    if not f or f.get("kind") != "stuck_on" or f.get("thruster") is None or not col.on_ms:
+        return None
+    i, h, lat = _command_timing(spec)
+    ticks, first = 0, None
+    for n, on in enumerate(col.on_ms):
+        on_s = float(on[i]) / 1000.0
+        if on_s < h - 1e-9 and n * h + lat + h > f["t_s"] + 1e-9:
+            ticks += 1
+            if first is None:
+                first = max(n * h + lat + on_s, f["t_s"])
+    return ticks, first
+
+
 def _open_throughout(spec: RunSpec, col: _Collector) -> bool | None:
     """For a stuck-on fault: whether its thruster was commanded on for the whole tick at every
     tick acting after the fault (its valve was open anyway: the fault changed nothing the
@@ -142,10 +162,13 @@ def run_task(task: Task) -> dict[str, Any]:
         sc = load_scenario(path)
         res = simulate(sc, on_tick=col)
         cmds = _commands_after(spec, col)
+        closed = _closed_after(spec, col)
         row = classify(spec, res.summary, commanded_after=None if cmds is None else cmds[0] > 0,
                        commanded_ticks=None if cmds is None else cmds[0],
                        first_command_s=None if cmds is None else cmds[1],
-                       open_throughout=_open_throughout(spec, col))
+                       open_throughout=_open_throughout(spec, col),
+                       closed_ticks=None if closed is None else closed[0],
+                       first_closed_s=None if closed is None else closed[1])
     except Exception as exc:  # noqa: BLE001 - a run that raises is a row, not a crash
         tb = traceback.extract_tb(exc.__traceback__)
         where = f"{Path(tb[-1].filename).name}:{tb[-1].lineno}" if tb else "?"

@@ -198,6 +198,19 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
                     L.append(f"| {k} | {_fmt_rate(g['detection'])} | "
                              f"{_fmt_lat(g['latency_from_command_s'])} |")
                 L.append("")
+            closed = [k for k in fcls if "closed_goal" in vs[k]]
+            if closed:
+                n = vs[closed[0]]["closed_goal"]["min_ticks"]
+                L += [f"Stuck on, seen only while its valve is meant to be closed: runs whose "
+                      f"thruster was commanded closed for part or all of {n} ticks or more "
+                      f"after the fault, or detected sooner:", "",
+                      "| fault class | detection rate [95 % CI] | latency from the first "
+                      "closed time s p50 / p90 / max |", "|---|---|---|"]
+                for k in closed:
+                    g = vs[k]["closed_goal"]
+                    L.append(f"| {k} | {_fmt_rate(g['detection'])} | "
+                             f"{_fmt_lat(g['latency_from_closed_s'])} |")
+                L.append("")
             conf = stats["confusion"].get(veh, {}).get("by_kind", [])
             if conf:
                 L += ["Isolation by kind (injected kind, what the first detection after the "

@@ -34,7 +34,12 @@ fault-free runs), each with its exact Clopper-Pearson 95 % interval:
   ``GOAL_COMMANDED_TICKS`` ticks after the fault, or detected before that many (the response
   drops the thruster: its commands stop at the detection; ``detected_sooner`` counts them),
   the detection rate, and the latency from the first command acting after the fault
-  (``latency_from_command_s``), p50 / p90 / max.
+  (``latency_from_command_s``), p50 / p90 / max;
+* for a stuck-on fault, which shows only while its valve is meant to be closed, the mirror
+  of that: among runs whose thruster was commanded closed for part or all of at least
+  ``GOAL_COMMANDED_TICKS`` ticks after the fault, or detected before that many, the detection
+  rate and the latency from the first closed time after the fault (``latency_from_closed_s``):
+  a slew that holds the stuck thruster open for seconds shows nothing until it closes it.
 
 The confusion matrix counts, for fault runs, the injected (thruster, kind) against what the
 first detection after the fault named: a thruster, a group (its own column, "one of {...}"),
@@ -116,11 +121,15 @@ def _incomplete(spec: Any, s: dict[str, Any]) -> str | None:
 def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool | None = None,
              error: str | None = None, commanded_ticks: int | None = None,
              first_command_s: float | None = None,
-             open_throughout: bool | None = None) -> dict[str, Any]:
+             open_throughout: bool | None = None, closed_ticks: int | None = None,
+             first_closed_s: float | None = None) -> dict[str, Any]:
     """The row of one run (module doc); ``spec`` is its ``RunSpec``. ``commanded_ticks`` and
     ``first_command_s``: ticks with the faulty thruster commanded after the fault and the time
     the first of them acted (faults seen only when their thruster fires); ``open_throughout``:
-    a stuck-on thruster commanded on for the whole of every tick after the fault."""
+    a stuck-on thruster commanded on for the whole of every tick after the fault;
+    ``closed_ticks`` and ``first_closed_s``: for a stuck-on fault, ticks with its valve meant
+    closed for part or all of the tick after the fault and the time the first closed time
+    began."""
     f = spec.fault
     row: dict[str, Any] = {
         "run": spec.run, "name": spec.name, "vehicle": spec.vehicle["name"],
@@ -130,6 +139,8 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
         "latency_s": None, "detected_as": None, "named": None, "wrong_first": None,
         "commanded_after_fault": commanded_after, "commanded_ticks_after_fault": commanded_ticks,
         "first_command_after_fault_s": first_command_s, "latency_from_command_s": None,
+        "closed_ticks_after_fault": closed_ticks, "first_closed_after_fault_s": first_closed_s,
+        "latency_from_closed_s": None,
         "fraction_error": None,
         "max_attitude_error_deg": None,
         "max_rate_error_deg_s": None, "fuel_kg": None, "sim_s": None, "pulse_tests": None,
@@ -172,6 +183,8 @@ def classify(spec: Any, summary: dict[str, Any] | None, *, commanded_after: bool
             row["fraction_error"] = round(float(d["fraction"]) - float(f["fraction"]), 6)
         if first_command_s is not None:
             row["latency_from_command_s"] = round(d["t_s"] - first_command_s, 6)
+        if first_closed_s is not None:
+            row["latency_from_closed_s"] = round(d["t_s"] - first_closed_s, 6)
     elif not judged:
         row["verdict"] = "unjudged"
         row["reason"] = "the summary does not judge this fault (no thruster)"
@@ -201,6 +214,23 @@ def _rate(k: int, n: int) -> dict[str, Any]:
     ci = clopper_pearson(k, n)
     return {"k": k, "n": n, "rate": round(k / n, 6) if n else None,
             "ci95": None if ci is None else [round(ci[0], 6), round(ci[1], 6)]}
+
+
+def _evidence_goal(obs: list[dict[str, Any]], ticks: str, latency: str
+                   ) -> dict[str, Any] | None:
+    """The goal's population over the observable rows ``obs``: those with ``GOAL_COMMANDED_TICKS``
+    or more ticks of evidence (row field ``ticks``), and those detected before that many (the
+    response ends the evidence); their detection rate and the latency field ``latency``.
+    None when no row counts its evidence (an older campaign, or a fault of another kind)."""
+    if not any(r.get(ticks) is not None for r in obs):
+        return None
+    early = [r for r in obs if r["verdict"] == "detected"
+             and (r.get(ticks) or 0) < GOAL_COMMANDED_TICKS]
+    goal = [r for r in obs if (r.get(ticks) or 0) >= GOAL_COMMANDED_TICKS] + early
+    gdet = [r for r in goal if r["verdict"] == "detected"]
+    return {"min_ticks": GOAL_COMMANDED_TICKS, "detected_sooner": len(early),
+            "detection": _rate(len(gdet), len(goal)),
+            latency: _pct([r[latency] for r in gdet if r.get(latency) is not None])}
 
 
 def campaign_statistics(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -253,17 +283,13 @@ def campaign_statistics(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 # A run detected before the thruster's third command is in it too: the
                 # response drops the thruster, so its commands stop at the detection (a test
                 # pulse names a thruster that failed after one burn and one pulse).
-                early = [r for r in obs if r["verdict"] == "detected" and
-                         (r.get("commanded_ticks_after_fault") or 0) < GOAL_COMMANDED_TICKS]
-                goal = [r for r in obs if (r.get("commanded_ticks_after_fault") or 0)
-                        >= GOAL_COMMANDED_TICKS] + early
-                if any(r.get("commanded_ticks_after_fault") is not None for r in obs):
-                    gdet = [r for r in goal if r["verdict"] == "detected"]
-                    st["commanded_goal"] = {
-                        "min_ticks": GOAL_COMMANDED_TICKS, "detected_sooner": len(early),
-                        "detection": _rate(len(gdet), len(goal)),
-                        "latency_from_command_s": _pct([r["latency_from_command_s"]
-                                                        for r in gdet])}
+                for key, ticks, lat in (("commanded_goal", "commanded_ticks_after_fault",
+                                         "latency_from_command_s"),
+                                        ("closed_goal", "closed_ticks_after_fault",
+                                         "latency_from_closed_s")):
+                    goal = _evidence_goal(obs, ticks, lat)
+                    if goal is not None:
+                        st[key] = goal
             tested = [r["pulse_tests"] for r in done if r.get("pulse_tests")]
             if tested:
                 # What the test pulses cost (the controller waits on their ticks) and found.

@@ -270,6 +270,62 @@ def test_a_stuck_on_thruster_open_at_every_tick_after_the_fault_is_unobservable(
                     open_throughout=True)["verdict"] == "detected"
 
 
+def test_closed_ticks_after_a_stuck_on_are_counted_from_the_ticks_on_times() -> None:
+    """The mirror of the command count: a tick n's command acts from ``n h + latency`` for its
+    on-time, and the valve is meant closed from then to the tick's end; a tick counts when
+    that closed time ends after the fault (hand count over seven ticks)."""
+    import numpy as np
+
+    from hil.campaign.engine import _Collector, _closed_after
+
+    fault = {"kind": "stuck_on", "thruster": "B", "t_s": 0.45}
+    spec = replace(SPEC, scenario={"duration_s": 1.4, "plant": {"command_latency_ms": 10.0}},
+                   fault=fault)
+    col = _Collector(record=False)
+    # B (index 1): nothing at tick 1 (closed 0.21-0.41: before the fault), the whole tick at
+    # tick 2 (acts 0.41-0.61: open across the fault), 150 ms at tick 3 (closed 0.76-0.81),
+    # the whole tick at 4, nothing at 5, 190 ms at 6 (closed 1.40-1.41).
+    for on_b in (200, 0, 200, 150, 200, 0, 190):
+        col.on_ms.append(np.array([0, on_b], dtype=np.int16))
+    ticks, first = _closed_after(spec, col)
+    assert ticks == 3
+    assert first == pytest.approx(0.76)
+    # the fault inside a closed time: the evidence starts at the fault
+    ticks, first = _closed_after(replace(spec, fault={**fault, "t_s": 0.3}), col)
+    assert (ticks, first) == (4, pytest.approx(0.3))
+    assert _closed_after(replace(spec, fault={**fault, "kind": "fail_to_fire"}), col) is None
+    col.on_ms = [np.array([0, 200], dtype=np.int16)] * 7
+    assert _closed_after(spec, col) == (0, None)
+
+
+def test_the_stuck_on_goal_counts_runs_closed_three_ticks_and_times_from_the_closing() -> None:
+    """The stuck-on goal population: runs whose valve was meant closed on 3+ ticks after the
+    fault or detected sooner; the latency from the first closed time (checked by hand)."""
+    fault = {"kind": "stuck_on", "thruster": "A", "t_s": 4.0}
+    spec = replace(SPEC, fault=fault)
+    faults = [{"t_s": 4.0, "thruster": "A", "type": "stuck_on"}]
+    det = {"t_s": 6.0, "thruster": "A", "type": "stuck_on", "latency_s": 2.0, "correct": True}
+    r = classify(spec, _summary(detections=[det], missed_faults=[], faults=faults),
+                 closed_ticks=6, first_closed_s=5.4)
+    assert r["verdict"] == "detected"
+    assert r["latency_from_closed_s"] == pytest.approx(0.6)
+    assert r["closed_ticks_after_fault"] == 6 and r["first_closed_after_fault_s"] == 5.4
+    summ = _summary(faults=faults, missed_faults=[{"t_s": 4.0, "thruster": "A",
+                                                    "type": "stuck_on"}])
+    missed = classify(spec, summ, open_throughout=False, closed_ticks=5, first_closed_s=4.2)
+    few = classify(spec, summ, open_throughout=False, closed_ticks=2, first_closed_s=9.0)
+    sooner = dict(r, run=3, closed_ticks_after_fault=1, latency_from_closed_s=0.2)
+    rows = [dict(r, run=0), dict(missed, run=1), dict(few, run=2), sooner]
+    st = campaign_statistics(rows)["by_vehicle"]["v"]["stuck_on"]
+    g = st["closed_goal"]
+    # runs 0 and 1 (6 and 5 closed ticks), run 3 (detected after 1); not run 2 (missed, 2)
+    assert (g["detection"]["k"], g["detection"]["n"]) == (2, 3)
+    assert g["detected_sooner"] == 1
+    assert g["latency_from_closed_s"]["max"] == pytest.approx(0.6)
+    assert "commanded_goal" not in st
+    assert (st["detection"]["k"], st["detection"]["n"]) == (2, 4)  # the whole population
+
+
 def test_a_degraded_detection_carries_its_fraction_error_and_the_goal_counts_the_tolerance(
         ) -> None:
     spec = replace(SPEC, fault={"kind": "degraded", "thruster": "A", "t_s": 4.0,
