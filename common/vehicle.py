@@ -443,6 +443,14 @@ class DetectorCfg(_Model):
     # and rivals judged by a margin of noise variances (flight.software._LONG_MARGIN), not a
     # ratio. None: off.
     leak_fit_long_ticks: int | None = Field(default=None, ge=10, le=5000)
+    # The whole-window, onset and long leak fits keep a finding only when the leak, fitted
+    # again jointly with the flex tones the adaptive observer tracks (each channel's identified
+    # frequency, a sine and a cosine on each axis), keeps its limit and at least half its size
+    # alone (the joint size is named): pulsing in step with a tone leaves its ringing on the
+    # quiet ticks at the same phases, which the leak alone takes in and the joint fit gives
+    # back to the tone; a leak beside tones ringing at other phases keeps its size.
+    # False: the leak alone.
+    leak_fit_tone: bool = False
     # The fits over the last ``leak_fit_ticks`` ticks (the whole window's and the onset's).
     # false: the long fit alone (needs leak_fit_long_ticks): on orel, whose thrusters fight
     # each other over a few ticks, the short window took a fighter's error for a leak or a

@@ -203,6 +203,13 @@ class TickOutput:
     attitude_BO: np.ndarray
 
 
+# A leak fit's finding stands beside the flex tones (``leak_fit_tone``) when the leak fitted
+# jointly with them keeps at least this share of its size alone: tones that ring at random
+# phases leave it, tones sampled at the same phases on every quiet tick (pulsing in step
+# with them) take it.
+_TONE_KEEP = 0.5
+
+
 def _rss_one(y: np.ndarray, x: np.ndarray) -> float:
     """Residual sum of squares of the one-parameter least-squares fit ``y ~ c x``, ``c >= 0``
     (arrays of one shape; all of ``y`` when ``x`` is zero or the best ``c`` is negative)."""
@@ -334,7 +341,7 @@ class FlightSoftware:
         self._pulse_testable = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) \
             * self._pulse_len_ms / 1000.0 >= dc.pulse_test_dead_zones * dc.dead_zone_rad_s
         # (raw residual, burns, variance) of the last ticks, for the leak-fit test
-        self._leak_window: list[tuple[np.ndarray, np.ndarray, float]] = []
+        self._leak_window: list[tuple[np.ndarray, np.ndarray, float, int]] = []
         self._leak_streak: tuple[int, int] = (-1, 0)  # (thruster, ticks in a row)
         # (observer residual, burns, outside the dead zone, raw residual) of the last ticks
         self._window: list[tuple[np.ndarray, np.ndarray, bool, np.ndarray, int]] = []
@@ -714,7 +721,7 @@ class FlightSoftware:
         sw = np.where(quiet, 1.0 / np.sqrt(np.array([w[2] for w in win])), 0.0)
         raw = np.array([w[0] for w in win]) * sw[:, None]
         closed = (self.h - np.clip(eff, 0.0, self.h)) * sw[:, None]
-        rss, c, xx, _ = _onset_fits(raw, closed * avail.astype(float)[None, :], mu, m)
+        rss, c, xx, k0 = _onset_fits(raw, closed * avail.astype(float)[None, :], mu, m)
         if not np.isfinite(rss).any():
             self._long_streak = (-1, 0)
             return None
@@ -729,13 +736,60 @@ class FlightSoftware:
         se = math.sqrt(s2 / float(xx[j]))
         ok = (c[j] >= dc.leak_fit_min and c[j] >= dc.leak_fit_sigma * se
               and rival - float(rss[j]) >= _LONG_MARGIN * s2)
+        size = float(c[j])
+        if ok and dc.leak_fit_tone:
+            beside = self._beside_tones(raw, closed[:, j] * (np.arange(len(win)) >= k0[j]), j,
+                                        sw, [w[3] for w in win], dc.leak_fit_min)
+            ok, size = beside is not None, size if beside is None else beside
         streak = self._long_streak[1] + 1 if ok and self._long_streak[0] == j else int(ok)
         self._long_streak = (j if ok else -1, streak)
         if not ok or streak < dc.leak_fit_hold:
             return None
         self._long_streak = (-1, 0)
-        found = self._leak_found(j, float(c[j]), avail)
+        found = self._leak_found(j, size, avail)
         return self._settle(found, found)
+
+    def _beside_tones(self, raw: np.ndarray, s: np.ndarray, j: int, sw: np.ndarray,
+                      ticks: list[int], least: float) -> float | None:
+        """Thruster j's leak fitted again beside the flex tones (``DetectorCfg.leak_fit_tone``):
+        the leak (regressor ``s`` (W,) from its onset, along its direction; ``raw`` (W, 3) and
+        ``s`` weighted by ``sw`` (W,)) jointly with a sine and a cosine at each frequency the
+        observer identifies (one per channel, the same within 2 % taken once), on each axis.
+        Returns the joint fit's size when it keeps at least ``least`` and ``_TONE_KEEP`` of
+        the leak's size alone, else None (the tones took it: ringing sampled at the same phases
+        on every quiet tick); the leak alone's size when there are no tones or too few ticks to
+        fit them. Whether the leak is significant is the calling fit's test, on the leak alone:
+        twelve more parameters would widen its error in every window, ringing or not."""
+        alone = float(raw.reshape(-1) @ (s[:, None] * self.arrays.mu_B_rad_s2[j][None, :])
+                      .reshape(-1)) / max(float((s * s).sum()) * float(
+                          self.arrays.mu_B_rad_s2[j] @ self.arrays.mu_B_rad_s2[j]), 1e-300)
+        if self.observer.kind != "adaptive":
+            return alone
+        freqs: list[float] = []
+        for f in sorted(float(x) for x in self.observer.freq_hz()):
+            if f > 0.0 and (not freqs or f > 1.02 * freqs[-1]):
+                freqs.append(f)
+        t = np.asarray(ticks, dtype=float) * self.h
+        w = len(t)
+        cols = [(s[:, None] * self.arrays.mu_B_rad_s2[j][None, :]).reshape(-1)]
+        for f in freqs:
+            for g in (np.cos(2.0 * math.pi * f * t), np.sin(2.0 * math.pi * f * t)):
+                for a in range(3):
+                    z = np.zeros((w, 3))
+                    z[:, a] = g * sw
+                    cols.append(z.reshape(-1))
+        X = np.stack(cols, axis=1)
+        y = raw.reshape(-1)
+        keep = (X != 0.0).any(axis=1)
+        X, y = X[keep], y[keep]
+        n, p = X.shape
+        if n <= p + 1:
+            return alone
+        coef, _, rank, _ = np.linalg.lstsq(X, y, rcond=None)
+        if rank < p:
+            return alone
+        c = float(coef[0])
+        return c if c >= max(least, _TONE_KEEP * alone) else None
 
     def _leak_fit_whole(self, raw: np.ndarray, eff: np.ndarray, closed: np.ndarray,
                         sw: np.ndarray, avail: np.ndarray) -> Detection | None:
@@ -768,6 +822,11 @@ class FlightSoftware:
             rival = rd if rival is None else min(rival, rd)
         ok = (c >= dc.leak_fit_min and c >= dc.leak_fit_sigma * se
               and (rival is None or rss < _LEAK_RIVAL_RSS * rival))
+        if ok and dc.leak_fit_tone:
+            beside = self._beside_tones(raw, closed[:, j], j, sw,
+                                        [w[3] for w in self._leak_window[-len(sw):]],
+                                        dc.leak_fit_min)
+            ok, c = beside is not None, c if beside is None else beside
         streak = self._leak_streak[1] + 1 if ok and self._leak_streak[0] == j else int(ok)
         self._leak_streak = (j if ok else -1, streak)
         if not ok or streak < dc.leak_fit_hold:
@@ -797,7 +856,7 @@ class FlightSoftware:
         mu = self.arrays.mu_B_rad_s2
         m = int(dc.leak_fit_onset_ticks)
         use = avail.astype(float)[None, :]
-        rss, c, xx, _ = _onset_fits(raw, closed * use, mu, m)
+        rss, c, xx, k0 = _onset_fits(raw, closed * use, mu, m)
         if not np.isfinite(rss).any():
             self._onset_streak = (-1, 0)
             return None
@@ -816,6 +875,12 @@ class FlightSoftware:
         se = math.sqrt(max(float(rss[j]) / dof, 1.0) / float(xx[j]))
         sure = c[j] >= dc.leak_fit_onset_min and c[j] >= dc.leak_fit_sigma * se \
             and rss[j] < _LEAK_RIVAL_RSS * rival
+        size = float(c[j])
+        if sure and dc.leak_fit_tone:
+            win = self._leak_window[-dc.leak_fit_ticks:]
+            beside = self._beside_tones(raw, closed[:, j] * (np.arange(len(win)) >= k0[j]), j,
+                                        sw, [w[3] for w in win], dc.leak_fit_onset_min)
+            sure, size = beside is not None, size if beside is None else beside
         ok = sure and rss[j] < _LEAK_RIVAL_RSS * deficit
         if sure and not ok and rd is not None:
             # Only a burning thruster's deficit rivals the leak: when that thruster acts
@@ -840,7 +905,7 @@ class FlightSoftware:
         if not ok or streak < dc.leak_fit_onset_hold:
             return None
         self._onset_streak = (-1, 0)
-        found = self._leak_found(j, c[j], avail)
+        found = self._leak_found(j, size, avail)
         return self._settle(found, found)
 
     def _leak_probe_decide(self, det: Detection, pair: tuple[int, int]) -> Detection | None:
@@ -985,7 +1050,8 @@ class FlightSoftware:
                 # learning does not know yet of the burning thrusters' thrust (weighted fit).
                 var = (self.detector.dead_zone_rad_s() / 3.0) ** 2 + float(np.trace(
                     self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat))) / 3
-                self._leak_window.append((self._window[-1][3], self._window[-1][1], var))
+                self._leak_window.append((self._window[-1][3], self._window[-1][1], var,
+                                          int(tick)))
                 # ticks of evidence since the window last restarted (start, response, gyro)
                 self._leak_seen = self._leak_seen + 1 if len(self._leak_window) > 1 else 1
                 dc = self.detector.cfg

@@ -31,11 +31,11 @@ def _feed(fs: FlightSoftware, cause, ticks: int, seed: int = 0):
     mu = fs.arrays.mu_B_rad_s2
     dz = fs.detector.dead_zone_rad_s()
     found = []
-    for _ in range(ticks):
+    for t in range(ticks):
         eff = np.where(rng.random(fs.n) < 0.15, rng.uniform(0.02, H, fs.n), 0.0)
         eff[_idx(fs, "SM-yaw_I")] = 0.0
         raw = cause(mu, eff) + 2.8e-7 * rng.standard_normal(3)
-        fs._leak_window.append((raw, eff, (dz / 3.0) ** 2))
+        fs._leak_window.append((raw, eff, (dz / 3.0) ** 2, t))
         del fs._leak_window[:-fs.detector.cfg.leak_fit_ticks]
         found.append(fs._leak_fit())
     return [d for d in found if d is not None]

@@ -48,7 +48,7 @@ def _fill(fs: FlightSoftware, rng, leak_of: int | None, size: float, onset: int,
             raw += size * mu[leak_of] * (H - eff[leak_of])
         raws.append(raw)
         effs.append(eff)
-        fs._leak_window.append((raw, eff, var))
+        fs._leak_window.append((raw, eff, var, k))
     return np.array(raws), np.array(effs), mu
 
 
@@ -135,13 +135,13 @@ def test_without_the_short_fit_only_the_long_window_names(short: bool) -> None:
     var = (fs.detector.dead_zone_rad_s() / 3.0) ** 2
     noise = 5e-6
 
-    def tick() -> Detection | None:
+    def tick(k: int) -> Detection | None:
         raw = noise * rng.standard_normal(3) + 0.5 * H * mu[j]
-        fs._leak_window.append((raw, np.zeros(fs.n), var))
+        fs._leak_window.append((raw, np.zeros(fs.n), var, k))
         del fs._leak_window[:-dc.leak_fit_long_ticks]
         return fs._leak_fit()
 
-    named = [k for k in range(dc.leak_fit_long_ticks + dc.leak_fit_hold) if tick() is not None]
+    named = [k for k in range(dc.leak_fit_long_ticks + dc.leak_fit_hold) if tick(k) is not None]
     # the window full at index ticks - 1, held from there for leak_fit_hold ticks
     first = (dc.leak_fit_ticks if short else dc.leak_fit_long_ticks) + dc.leak_fit_hold - 2
     assert named and named[0] == first

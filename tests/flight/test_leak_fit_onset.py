@@ -97,7 +97,7 @@ def _feed_step(fs: FlightSoftware, leak: float, onset: int, ticks: int, seed: in
         eff = np.where(rng.random(fs.n) < 0.15, rng.uniform(0.02, H, fs.n), 0.0)
         eff[j] = 0.0
         raw = (leak * mu[j] * H if t >= onset else 0.0) + 2.8e-7 * rng.standard_normal(3)
-        fs._leak_window.append((raw, eff, (dz / 3.0) ** 2))
+        fs._leak_window.append((raw, eff, (dz / 3.0) ** 2, t))
         del fs._leak_window[:-fs.detector.cfg.leak_fit_ticks]
         fs._leak_seen += 1
         d = fs._leak_fit()
