@@ -17,6 +17,20 @@ from typing import Any
 from hil.campaign.statistics import FAILED, campaign_statistics, worst_runs
 
 
+def _goal_table(classes: list[str], vs: dict, key: str, lat: str, head: str,
+                col: str) -> list[str]:
+    """The goal population's table (``key``: ``commanded_goal`` or ``closed_goal``) over the
+    fault ``classes`` that have it, with ``head`` (``{n}``: its minimum ticks) above it."""
+    if not classes:
+        return []
+    L = [head.format(n=vs[classes[0]][key]["min_ticks"]), "",
+         f"| fault class | detection rate [95 % CI] | latency from the first {col} s "
+         "p50 / p90 / max |", "|---|---|---|"]
+    for k in classes:
+        g = vs[k][key]
+        L.append(f"| {k} | {_fmt_rate(g['detection'])} | {_fmt_lat(g[lat])} |")
+    return L + [""]
+
 def reproduce_command(campaign_file: str, row: dict[str, Any]) -> str:
     return (f"hil campaign expand {campaign_file} --run {row['run']} --out runs/repro && "
             f"hil run runs/repro/{row['name']}.yaml")
@@ -184,33 +198,17 @@ def write_report(rows: list[dict[str, Any]], out: Path, *, campaign: str, campai
                       f"one in {_fmt_rate(fe['within_tolerance'])} of the observable runs; "
                       f"|error| p50 / p90 / max {_fmt_lat(fe)}, mean signed error "
                       f"{fe['mean_signed']}.", ""]
-            goals = [k for k in fcls if "commanded_goal" in vs[k]]
-            if goals:
-                n = vs[goals[0]]["commanded_goal"]["min_ticks"]
-                L += [f"Faults seen only when their thruster fires, runs whose thruster was "
-                      f"commanded on {n} ticks or more after the fault, or detected before its "
-                      f"{n}th command (the FDIR goal's population; the response ends the "
-                      f"thruster's commands):", "",
-                      "| fault class | detection rate [95 % CI] | latency from the first "
-                      "command s p50 / p90 / max |", "|---|---|---|"]
-                for k in goals:
-                    g = vs[k]["commanded_goal"]
-                    L.append(f"| {k} | {_fmt_rate(g['detection'])} | "
-                             f"{_fmt_lat(g['latency_from_command_s'])} |")
-                L.append("")
-            closed = [k for k in fcls if "closed_goal" in vs[k]]
-            if closed:
-                n = vs[closed[0]]["closed_goal"]["min_ticks"]
-                L += [f"Stuck on, seen only while its valve is meant to be closed: runs whose "
-                      f"thruster was commanded closed for part or all of {n} ticks or more "
-                      f"after the fault, or detected sooner:", "",
-                      "| fault class | detection rate [95 % CI] | latency from the first "
-                      "closed time s p50 / p90 / max |", "|---|---|---|"]
-                for k in closed:
-                    g = vs[k]["closed_goal"]
-                    L.append(f"| {k} | {_fmt_rate(g['detection'])} | "
-                             f"{_fmt_lat(g['latency_from_closed_s'])} |")
-                L.append("")
+            for key, lat, head, col in (
+                    ("commanded_goal", "latency_from_command_s",
+                     "Faults seen only when their thruster fires, runs whose thruster was "
+                     "commanded on {n} ticks or more after the fault, or detected before its "
+                     "{n}th command (the FDIR goal's population; the response ends the "
+                     "thruster's commands):", "command"),
+                    ("closed_goal", "latency_from_closed_s",
+                     "Stuck on, seen only while its valve is meant to be closed: runs whose "
+                     "thruster was commanded closed for part or all of {n} ticks or more "
+                     "after the fault, or detected sooner:", "closed time")):
+                L += _goal_table([k for k in fcls if key in vs[k]], vs, key, lat, head, col)
             conf = stats["confusion"].get(veh, {}).get("by_kind", [])
             if conf:
                 L += ["Isolation by kind (injected kind, what the first detection after the "

@@ -276,7 +276,7 @@ def test_closed_ticks_after_a_stuck_on_are_counted_from_the_ticks_on_times() -> 
     that closed time ends after the fault (hand count over seven ticks)."""
     import numpy as np
 
-    from hil.campaign.engine import _Collector, _closed_after
+    from hil.campaign.engine import _closed_after, _Collector
 
     fault = {"kind": "stuck_on", "thruster": "B", "t_s": 0.45}
     spec = replace(SPEC, scenario={"duration_s": 1.4, "plant": {"command_latency_ms": 10.0}},
