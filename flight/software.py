@@ -760,9 +760,9 @@ class FlightSoftware:
         on every quiet tick); the leak alone's size when there are no tones or too few ticks to
         fit them. Whether the leak is significant is the calling fit's test, on the leak alone:
         twelve more parameters would widen its error in every window, ringing or not."""
-        alone = float(raw.reshape(-1) @ (s[:, None] * self.arrays.mu_B_rad_s2[j][None, :])
-                      .reshape(-1)) / max(float((s * s).sum()) * float(
-                          self.arrays.mu_B_rad_s2[j] @ self.arrays.mu_B_rad_s2[j]), 1e-300)
+        mu = self.arrays.mu_B_rad_s2[j]
+        leak = (s[:, None] * mu[None, :]).reshape(-1)            # the leak's regressor
+        alone = float(raw.reshape(-1) @ leak) / max(float(leak @ leak), 1e-300)
         if self.observer.kind != "adaptive":
             return alone
         freqs: list[float] = []
@@ -771,7 +771,7 @@ class FlightSoftware:
                 freqs.append(f)
         t = np.asarray(ticks, dtype=float) * self.h
         w = len(t)
-        cols = [(s[:, None] * self.arrays.mu_B_rad_s2[j][None, :]).reshape(-1)]
+        cols = [leak]
         for f in freqs:
             for g in (np.cos(2.0 * math.pi * f * t), np.sin(2.0 * math.pi * f * t)):
                 for a in range(3):

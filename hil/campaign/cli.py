@@ -84,18 +84,17 @@ def _print_summary(doc: dict[str, Any]) -> None:
                     print(f"    thrust fraction within {fe['tolerance']}: "
                           f"{_fmt_rate(fe['within_tolerance'])}, |error| p50/p90/max "
                           f"{_fmt_lat(fe)}, mean signed {fe['mean_signed']}")
-                if "commanded_goal" in st:
-                    g = st["commanded_goal"]
-                    print(f"    commanded on {g['min_ticks']}+ ticks after the fault (or "
-                          f"detected sooner: {g.get('detected_sooner', 0)}): detected "
-                          f"{_fmt_rate(g['detection'])}, from the first command p50/p90/max "
-                          f"{_fmt_lat(g['latency_from_command_s'])}")
-                if "closed_goal" in st:
-                    g = st["closed_goal"]
-                    print(f"    commanded closed {g['min_ticks']}+ ticks after the fault (or "
-                          f"detected sooner: {g.get('detected_sooner', 0)}): detected "
-                          f"{_fmt_rate(g['detection'])}, from the first closed time "
-                          f"p50/p90/max {_fmt_lat(g['latency_from_closed_s'])}")
+                for key, what, lat in (
+                        ("commanded_goal", ("commanded on", "first command"),
+                         "latency_from_command_s"),
+                        ("closed_goal", ("commanded closed", "first closed time"),
+                         "latency_from_closed_s")):
+                    if key in st:
+                        g = st[key]
+                        print(f"    {what[0]} {g['min_ticks']}+ ticks after the fault (or "
+                              f"detected sooner: {g.get('detected_sooner', 0)}): detected "
+                              f"{_fmt_rate(g['detection'])}, from the {what[1]} p50/p90/max "
+                              f"{_fmt_lat(g[lat])}")
     if doc["failures"]:
         print(f"  failed runs: {len(doc['failures'])} (see report.md)")
 

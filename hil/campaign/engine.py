@@ -113,38 +113,40 @@ def _commands_after(spec: RunSpec, col: _Collector) -> tuple[int, float | None] 
     return ticks, first
 
 
+def _stuck_ticks(spec: RunSpec, col: _Collector) -> tuple[float, list[tuple[float, float]]]:
+    """For a stuck-on fault: the tick (s), and for every tick whose command acts after the
+    fault the plant time it acts from (``n h + latency``) and the faulty thruster's on-time (s)
+    in it; no ticks for other faults."""
+    f = spec.fault
+    if not f or f.get("kind") != "stuck_on" or f.get("thruster") is None or not col.on_ms:
+        return 0.0, []
+    i, h, lat = _command_timing(spec)
+    return h, [(n * h + lat, float(on[i]) / 1000.0) for n, on in enumerate(col.on_ms)
+               if n * h + lat + h > f["t_s"] + 1e-9]
+
+
 def _closed_after(spec: RunSpec, col: _Collector) -> tuple[int, float | None] | None:
     """For a stuck-on fault: the ticks on which the faulty thruster's valve was commanded
     closed for part or all of the tick after the fault (the only ticks a stuck valve shows
     on: the mirror of ``_commands_after``), and the plant time the first such closed time
-    began (a tick n's command acts from ``n h + latency`` for its on-time, and the valve is
-    meant closed from then to the tick's end); None for other faults."""
+    began (the valve is meant closed from the end of the tick's on-time to the tick's end);
+    None for other faults."""
     f = spec.fault
     if not f or f.get("kind") != "stuck_on" or f.get("thruster") is None or not col.on_ms:
         return None
-    i, h, lat = _command_timing(spec)
-    ticks, first = 0, None
-    for n, on in enumerate(col.on_ms):
-        on_s = float(on[i]) / 1000.0
-        if on_s < h - 1e-9 and n * h + lat + h > f["t_s"] + 1e-9:
-            ticks += 1
-            if first is None:
-                first = max(n * h + lat + on_s, f["t_s"])
-    return ticks, first
+    h, ticks = _stuck_ticks(spec, col)
+    closed = [t0 + on for t0, on in ticks if on < h - 1e-9]
+    return len(closed), (max(closed[0], f["t_s"]) if closed else None)
 
 
 def _open_throughout(spec: RunSpec, col: _Collector) -> bool | None:
     """For a stuck-on fault: whether its thruster was commanded on for the whole tick at every
     tick acting after the fault (its valve was open anyway: the fault changed nothing the
     plant could show); None for other faults, or no tick after the fault."""
-    f = spec.fault
-    if not f or f.get("kind") != "stuck_on" or f.get("thruster") is None or not col.on_ms:
+    h, ticks = _stuck_ticks(spec, col)
+    if not ticks:
         return None
-    i, h, lat = _command_timing(spec)
-    after = [on[i] for n, on in enumerate(col.on_ms) if n * h + lat + h > f["t_s"] + 1e-9]
-    if not after:
-        return None
-    return all(float(v) >= h * 1000.0 - 1e-6 for v in after)
+    return all(on >= h - 1e-9 for _, on in ticks)
 
 
 def run_task(task: Task) -> dict[str, Any]:

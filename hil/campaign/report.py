@@ -31,6 +31,7 @@ def _goal_table(classes: list[str], vs: dict, key: str, lat: str, head: str,
         L.append(f"| {k} | {_fmt_rate(g['detection'])} | {_fmt_lat(g[lat])} |")
     return L + [""]
 
+
 def reproduce_command(campaign_file: str, row: dict[str, Any]) -> str:
     return (f"hil campaign expand {campaign_file} --run {row['run']} --out runs/repro && "
             f"hil run runs/repro/{row['name']}.yaml")
