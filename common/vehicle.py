@@ -200,6 +200,14 @@ class ObserverCfg(_Model):
     # tick): how well the vehicle's modes are known. The default [1/4, 4] lets a slow drift
     # of the rigid estimate be taken for a mode at the band's floor.
     freq_band: tuple[PosFloat, PosFloat] = (0.25, 4.0)
+    # How well the mode frequency is known before flight, 1 sigma, a fraction of
+    # initial_freq_hz (None: not modelled). Given, the observer also fits the frequency by
+    # least squares on the free ringing (three tick intervals in a row with no thruster
+    # burning: the flex increments follow z(n+1) = A z(n) - B z(n-1), a constant beside them
+    # for a leak), takes the fit once it is known to a third of the prior, and reports the
+    # flex prediction's uncertainty (flight/observer.py, "Frequency fitted on the free
+    # ringing"; detector.flex_freq_dead_zone widens the dead zone by it).
+    freq_prior_sigma: PosFloat | None = None
 
     @model_validator(mode="after")
     def _band_holds_the_prior(self) -> ObserverCfg:
@@ -416,6 +424,15 @@ class DetectorCfg(_Model):
     # of the burning thrusters' rate change along that axis (sum_j |mu_j,axis| eff_j) from
     # the last tick: a burst after a coast rings the structure, steady firing does not. 0: none.
     flex_share: float = Field(default=0.0, ge=0.0, le=1.0)
+    # The dead zone (absolute plus relative) widened by this many standard deviations of the
+    # adaptive observer's flex prediction error from a frequency not yet known
+    # (observer.freq_prior_sigma): |g^| sigma_A per channel, sigma_A from the prior until the
+    # fit on the free ringing knows it better. None: off.
+    flex_freq_dead_zone: PosFloat | None = None
+    # ... and by no more than this many absolute dead zones: the flex estimate g^ also holds
+    # what the observer took in of an unmodelled thrust (a stuck thruster: 0.15 rad/s on
+    # orel-stuck run 25, where the structure rings at 1e-3), which is no ringing to widen for.
+    flex_freq_dead_zone_cap: PosFloat = 2.0
     # Leak-fit test (an integrating test of the no-command evidence): over the last
     # ``leak_fit_ticks`` ticks the raw residual (3 axes) is fitted by each thruster's leak
     # (its closed-valve time times its acceleration, one parameter of positive size); the best
@@ -559,6 +576,16 @@ class FlightCfg(_Model):
     kalman: KalmanCfg = KalmanCfg()
     fdir: FdirCfg = FdirCfg()
     orbit_correction: OrbitCorrectionCfg | None = None
+
+    @model_validator(mode="after")
+    def _flex_freq_needs_its_prior(self) -> FlightCfg:
+        if self.detector.flex_freq_dead_zone is not None and (
+                self.observer.kind != "adaptive" or self.observer.freq_prior_sigma is None):
+            raise _FieldError("detector.flex_freq_dead_zone",
+                              "null unless observer.kind is adaptive with freq_prior_sigma set "
+                              "(it widens the dead zone by that prior's flex uncertainty)",
+                              self.detector.flex_freq_dead_zone)
+        return self
 
 
 class VehicleCfg(_Model):

@@ -588,16 +588,21 @@ class Detector:
             return True
         return float(dw @ np.linalg.solve(S, dw)) < 1.0
 
-    def in_learnt_ellipsoid(self, dw_B_rad_s: np.ndarray, thrust_cov: np.ndarray) -> bool:
+    def in_learnt_ellipsoid(self, dw_B_rad_s: np.ndarray, thrust_cov: np.ndarray,
+                            flex_sigma: np.ndarray | None = None) -> bool:
         """Dead zone from the learning (``relative_dead_zone_sigma`` = kappa): inside when
-        ``dw^T (dz^2 I + kappa^2 C)^-1 dw < 1``, ``C`` (3, 3) the covariance of the burning
-        thrusters' predicted rate change (``Effectiveness.rate_change_cov``)."""
+        ``dw^T (dz^2 I + kappa^2 C + diag(k s)^2)^-1 dw < 1``, ``C`` (3, 3) the covariance of
+        the burning thrusters' predicted rate change (``Effectiveness.rate_change_cov``),
+        ``s`` (3,) the flex prediction's uncertainty per channel and ``k`` =
+        ``flex_freq_dead_zone``."""
         cfg = self.cfg
         dw = np.asarray(dw_B_rad_s, dtype=float)
         if not np.any(dw):
             return True
         S = self.dead_zone_rad_s()**2 * np.eye(3) + \
             float(cfg.relative_dead_zone_sigma) ** 2 * np.asarray(thrust_cov, dtype=float)
+        if flex_sigma is not None:
+            S = S + np.diag(np.asarray(flex_sigma, dtype=float) ** 2)
         return float(dw @ np.linalg.solve(S, dw)) < 1.0
 
     def dead_zone_rad_s(self) -> float:
@@ -607,18 +612,21 @@ class Detector:
         return self.cfg.dead_zone_rad_s * max(1.0, self.noise_ratio / NOISE_MARGIN)
 
     def project(self, dw_B_rad_s: np.ndarray, commanded_abs_rad_s: float = 0.0,
-                inside: bool | None = None) -> tuple[np.ndarray, float, bool]:
+                inside: bool | None = None,
+                extra_rad_s: float = 0.0) -> tuple[np.ndarray, float, bool]:
         """Steps 1-2: dead zone, normalisation and projections xi (N,).
 
-        The dead zone is ``dead_zone_rad_s + relative_dead_zone * commanded_abs_rad_s``
-        (``commanded_abs_rad_s``: sum of the commanded thrusters' rate-change magnitudes),
-        unless ``inside`` was decided by the caller (the ellipsoid, ``in_ellipsoid``).
+        The dead zone is ``dead_zone_rad_s + relative_dead_zone * commanded_abs_rad_s +
+        extra_rad_s`` (``commanded_abs_rad_s``: sum of the commanded thrusters' rate-change
+        magnitudes; ``extra_rad_s``: the flex prediction's uncertainty,
+        ``flex_freq_dead_zone``), unless ``inside`` was decided by the caller (the ellipsoid,
+        ``in_ellipsoid``).
         """
         dw = np.asarray(dw_B_rad_s, dtype=float)
         norm = float(np.linalg.norm(dw))
         if inside is None:
             dz = (self.dead_zone_rad_s()
-                  + self.cfg.relative_dead_zone * float(commanded_abs_rad_s))
+                  + self.cfg.relative_dead_zone * float(commanded_abs_rad_s) + extra_rad_s)
             inside = norm < dz
         if inside or norm == 0.0:
             return np.zeros(self.n), norm, True

@@ -74,6 +74,25 @@ rigid model (e.g. thrust 15 % below nominal, seed 003's flight test) as "influen
 mu^ to non-physical values and make the next burst of pulses look like a failure (found on
 S003-flex).
 
+Frequency fitted on the free ringing (``freq_prior_sigma`` set): the NLMS step above moves
+A^ by a few per cent of its error on each quiet tick, and on a channel where thrusters act on
+nearly every tick (a slew) it does not move at all; the ringing after the slew then meets a
+frequency still at its a-priori value, 0.7-1.4 times off in orel's envelope, and the
+misprediction ``(A - A^) g`` (1-2.6e-4 rad/s against orel's 1e-4 dead zone) read as a
+middle-belt thruster stuck on (7 of 1,000 fault-free runs). On three tick intervals in a row
+with no thruster burning (``u = 0`` on every channel) the flex part of the rate increments,
+``z(n) = y(n+1) - y(n) - d(n)``, follows the homogeneous recursion
+``z(n+1) + B z(n-1) = A z(n)``; a leak adds the constant ``L (1 - A + B)``. Each such triple
+adds to a least-squares fit of ``(A, c)`` per channel (forgetting ``_FIT_FORGET`` per triple),
+whose standard error ``se_A`` comes from its own residuals. Once ``se_A`` is under a third of
+the prior's ``sigma_A0 = |dA/df| freq_prior_sigma f0``, A^ takes the fit (kept in the band)
+on every new triple, and ``reset`` returns to it (a constant in the fit keeps a stuck thrust
+out of it). ``flex_sigma`` is the flex prediction's standard deviation per channel from the
+frequency's uncertainty, ``sigma_A |g^|`` (``sigma_A`` = the fit's se once taken, else the
+prior's), which the detector adds to its dead zone (``detector.flex_freq_dead_zone``). On
+orel's 8 fault-free false-alarm runs the first such triple came 0-1.2 s before the alarm and
+the fit was within 0.01 Hz of the mode 2-4 s later (tests/flight/test_observer_free_fit.py).
+
 ``kind = rigid`` keeps only ``w^`` (no flex state): ``w^ = w^- + W1 eps`` on quiet ticks,
 ``W5 eps`` on switching ticks. With W1 = W5 = 1 it returns the measurement itself, which is
 seed 000's "predict from the measured rate".
@@ -90,6 +109,10 @@ from common.vehicle import ObserverCfg
 
 # Forgetting of the running mean squares that normalise the parameter steps.
 _P_FORGET = 0.95
+# Forgetting per triple of the frequency fit on the free ringing; triples before it is used.
+_FIT_FORGET = 0.98
+_FIT_MIN = 4.0
+_FIT_PER_CHANNEL = True
 # A tick is a switching instant for the mu^ identification when the channel's thrust
 # increment changes by more than this fraction of its size.
 _EDGE = 0.5
@@ -148,7 +171,24 @@ class AdaptiveObserver:
         self._A_max = 2.0 * rb * np.cos(2.0 * math.pi * lo * self.h)
         self._floor2 = noise_floor_rad_s**2
         self.mu_bound = float(cfg.mu_bound if mu_bound is None else mu_bound)
+        # The frequency fit on the free ringing (cfg.freq_prior_sigma; module doc): the
+        # prior's sigma of A, the fit's normal equations per channel (A, c), and the A^ it
+        # last gave (None until it knows the frequency to a third of the prior).
+        self._fit = cfg.freq_prior_sigma is not None and self.kind == "adaptive"
+        dA_df = 2.0 * rb * 2.0 * math.pi * self.h * np.sin(2.0 * math.pi * f0 * self.h)
+        self.sigma_A0 = dA_df * (cfg.freq_prior_sigma or 0.0) * f0
+        self._fit_clear()
         self.reset()
+
+    def _fit_clear(self) -> None:
+        self._NN = np.zeros((3, 2, 2))
+        self._Nb = np.zeros((3, 2))
+        self._Ntt = np.zeros(3)
+        self._Nn = np.zeros(3)
+        self._quiet_run = np.zeros(3, dtype=int)
+        self._zs: list[np.ndarray] = []  # the last quiet intervals' z (3,), oldest first
+        self.A_fit: np.ndarray | None = None
+        self.sigma_A = self.sigma_A0.copy()
 
     def reset(self, omega_B_rad_s: np.ndarray | None = None) -> None:
         self.initialised = omega_B_rad_s is not None
@@ -157,7 +197,11 @@ class AdaptiveObserver:
         self.g_prev = np.zeros(3)
         self.eps = np.zeros(3)
         self.u_prev = np.zeros(3)
+        self.y_prev: np.ndarray | None = None
         self.A = 2.0 * np.sqrt(self.B) * np.cos(2.0 * math.pi * self.f0_hz * self.h)
+        if self._fit and self.A_fit is not None:
+            # the fit on the free ringing is kept: its constant keeps a leak out of it
+            self.A = np.where(np.isnan(self.A_fit), self.A, self.A_fit)
         self.mu = np.zeros(3)
         self.P_g = np.zeros(3)
         self.P_v = np.zeros(3)
@@ -175,6 +219,58 @@ class AdaptiveObserver:
         self.g = np.zeros(3)
         self.g_prev = np.zeros(3)
         self.eps = np.zeros(3)
+        if self._fit:
+            # the jump is not the dynamics: no increment across it enters the fit
+            self._zs = []
+            self.y_prev = None
+
+    def flex_sigma(self) -> np.ndarray:
+        """(3,) the flex prediction's standard deviation per channel from the frequency's
+        uncertainty, ``sigma_A |g^|`` (zeros without ``freq_prior_sigma``)."""
+        if not self._fit:
+            return np.zeros(3)
+        return self.sigma_A * np.abs(self.g)
+
+    def _fit_step(self, y: np.ndarray, d: np.ndarray, u: np.ndarray) -> None:
+        """One interval for the frequency fit on the free ringing (module doc)."""
+        if self.y_prev is None:
+            self._zs = []
+            self._quiet_run = np.zeros(3, dtype=int)
+        else:
+            quiet = (u == 0.0) if _FIT_PER_CHANNEL else np.full(3, not np.any(u != 0.0))
+            self._quiet_run = np.where(quiet, self._quiet_run + 1, 0)
+            self._zs = (self._zs + [y - self.y_prev - d])[-3:]
+        self.y_prev = y.copy()
+        use = self._quiet_run >= 3
+        if len(self._zs) < 3 or not use.any():
+            return
+        z0, z1, z2 = self._zs
+        x = np.stack([z1, np.ones(3)], axis=1)  # (3, 2)
+        t = z2 + self.B * z0
+        f = np.where(use, _FIT_FORGET, 1.0)
+        m = use.astype(float)
+        self._NN = f[:, None, None] * self._NN + m[:, None, None] * x[:, :, None] * x[:, None, :]
+        self._Nb = f[:, None] * self._Nb + m[:, None] * x * t[:, None]
+        self._Ntt = f * self._Ntt + m * t * t
+        self._Nn = f * self._Nn + m
+        if not np.any(self._Nn >= _FIT_MIN):
+            return
+        det = self._NN[:, 0, 0] * self._NN[:, 1, 1] - self._NN[:, 0, 1] ** 2
+        ok = det > 1e-12 * self._NN[:, 0, 0] * self._NN[:, 1, 1] + 1e-300
+        safe = np.where(ok, det, 1.0)
+        a = (self._NN[:, 1, 1] * self._Nb[:, 0] - self._NN[:, 0, 1] * self._Nb[:, 1]) / safe
+        c = (self._NN[:, 0, 0] * self._Nb[:, 1] - self._NN[:, 0, 1] * self._Nb[:, 0]) / safe
+        rss = np.maximum(self._Ntt - a * self._Nb[:, 0] - c * self._Nb[:, 1], 0.0)
+        s2 = np.maximum(rss / np.maximum(self._Nn - 2.0, 1.0), self._floor2)
+        se = np.sqrt(s2 * self._NN[:, 1, 1] / safe)
+        take = ok & (self._Nn >= _FIT_MIN) & (se < self.sigma_A0 / 3.0)
+        if not take.any():
+            return
+        a = np.clip(a, self._A_min, self._A_max)
+        self.A = np.where(take, a, self.A)
+        prev = np.full(3, np.nan) if self.A_fit is None else self.A_fit
+        self.A_fit = np.where(take, a, prev)
+        self.sigma_A = np.where(take, se, self.sigma_A)
 
     def rate_response(self, s: np.ndarray) -> np.ndarray:
         """Flex rate at the gyro ``s`` seconds after a unit modal impulse, per channel (3,):
@@ -201,6 +297,8 @@ class AdaptiveObserver:
             self.reset(y)
             self.u_prev = u.copy()
             self.lead_prev = np.zeros(3) if lead is None else lead
+            if self._fit:
+                self.y_prev = y.copy()
             return self._out(np.zeros(3), switching)
         w_pred = self.w + d + u
         if self.kind == "rigid":
@@ -239,6 +337,8 @@ class AdaptiveObserver:
         self.w = w_pred + np.where(switching, W5, W1) * eps
         self.eps = eps
         self.u_prev = u.copy()
+        if self._fit:
+            self._fit_step(y, d, u)
         return self._out(eps, switching)
 
     def _out(self, eps: np.ndarray, switching: np.ndarray) -> ObserverOutput:

@@ -998,6 +998,16 @@ class FlightSoftware:
         """Is the residual ``dw`` (3,) inside the detector's dead zone for this tick's
         thrusters (the learnt ellipsoid, the fixed one, or absolute plus relative)?"""
         det = self.detector
+        # The flex prediction's uncertainty from a mode frequency not yet known
+        # (detector.flex_freq_dead_zone standard deviations per channel; flight/observer.py).
+        k = det.cfg.flex_freq_dead_zone
+        flex = None
+        if k is not None:
+            flex = k * self.observer.flex_sigma()
+            cap = det.cfg.flex_freq_dead_zone_cap * det.dead_zone_rad_s()
+            size = float(np.linalg.norm(flex))
+            if size > cap:
+                flex = flex * (cap / size)
         if det.cfg.relative_dead_zone_sigma is not None and pred.eff_s is not None:
             cov = self.effectiveness.rate_change_cov(pred.eff_s, avail, pred.deff_dlat)
             share = det.cfg.flex_share
@@ -1007,12 +1017,13 @@ class FlightSoftware:
                 # tick's.
                 step = self._u_abs(pred, avail) - self._u_abs_last
                 cov = cov + np.diag((share * step) ** 2)
-            return det.in_learnt_ellipsoid(dw, cov)
+            return det.in_learnt_ellipsoid(dw, cov, flex)
         if det.cfg.relative_dead_zone_across is not None and pred.eff_s is not None:
             m = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) * np.abs(
                 self.effectiveness.k * pred.eff_s)
             return det.in_ellipsoid(dw, m)
-        return bool(det.project(dw, pred.dw_thr_abs_rad_s)[2])
+        extra = 0.0 if flex is None else float(np.linalg.norm(flex))
+        return bool(det.project(dw, pred.dw_thr_abs_rad_s, extra_rad_s=extra)[2])
 
     def _u_abs(self, pred: Prediction, avail: np.ndarray) -> np.ndarray:
         """(3,) the burning thrusters' rate change along each axis, sum_j |mu_j,axis| eff_j."""

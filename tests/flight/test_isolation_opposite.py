@@ -57,8 +57,10 @@ def test_a_failing_orel_thruster_is_not_named_as_its_near_opposite_stuck(
     """orel-fails run 198: thruster 10 fails to fire at 3.1 s and is commanded at once; 13 is
     3.5 deg from its opposite (the detector's 2-deg test does not pair them). Named right
     within 2 s of the fault; with the detector's pairs, 13 stuck on. Without orel's test
-    pulses (with them, the pulses name 10 before either pairing is asked)."""
-    quiet = {"pulse_test_below": "null"}
+    pulses (with them, the pulses name 10 before either pairing is asked), and without the
+    dead zone's flex-frequency term (with it and no pulses, 13 stuck on is named at 5.8 s;
+    with both, the pulses name 10 at 6.2 s)."""
+    quiet = {"pulse_test_below": "null", "flex_freq_dead_zone": "null"}
     spec, sim = campaign_run(tmp_path, "orel-fails", 198, quiet)
     assert spec.fault["kind"] == "fail_to_fire"
     d = sim.summary["detections"][0]
