@@ -171,8 +171,12 @@ _FIT_WHITE = 0.2
 # swing back read as a bias step in runs 70 and 187; a sensor's jump is all innovation (100 %).
 _INNOVATION_SHARE = 0.5
 # A held jump is named a bias step only out of a calm: the observer's innovation (the raw
-# residual without one) along the jump over the _CALM_TICKS ticks before it, root mean square,
-# under return_fraction of the jump. A sensor's step comes out of whatever the residual was
+# residual without one), and the raw residual as well, along the jump over the _CALM_TICKS
+# ticks before it, root mean square, under return_fraction of the jump. The raw residual too:
+# a mode the observer does not follow yet (orel-envelope-3 run 365, roll at 1.33 times its
+# prior, 6.6 s into a slew) swings the raw residual by 5-9e-4 rad/s along the jump before it
+# while the innovation stays quiet, then puts a 1.4e-3 swing into both; named a bias step.
+# A sensor's step comes out of whatever the residual was
 # (thrust errors, noise: on kalman_cube's limit cycle about 40e-6 rad/s a tick); a thruster
 # stuck on while it is commanded leaks only in the closed part of each tick, so its residual
 # comes and goes along its direction with the burns (kalman_cube-leaks run 10: Z+ at 15 %,
@@ -272,6 +276,7 @@ class GyroCheck:
         self.fit_sigma_rad_s = 0.0  # the largest white axis's noise the fit test reads
         self.fit_lag2 = np.zeros(3)  # per axis, the fit's last lag-one level (rad/s)^2
         self._calm: list[np.ndarray] = []  # the last ticks' innovation (raw residual without)
+        self._calm_raw: list[np.ndarray] = []  # the last ticks' raw residual
 
     def forget_pending(self) -> None:
         """The flight changed the dynamics itself (an FDIR response): a held jump is not to be
@@ -281,6 +286,7 @@ class GyroCheck:
         self._run = False
         self._settle = False
         self._calm = []
+        self._calm_raw = []
 
     def restart_noise(self) -> None:
         """The flight changed the dynamics itself (an FDIR response): the quiet ticks' level
@@ -349,6 +355,8 @@ class GyroCheck:
         v = self._step(y, predicted_change, thrust_abs, increments)
         self._calm.append(np.array(v.residual if self._innovation is None else self._innovation))
         del self._calm[:-_CALM_TICKS - 1]
+        self._calm_raw.append(np.array(v.residual))
+        del self._calm_raw[:-_CALM_TICKS - 1]
         self._u_prev = None if increments is None else np.array(increments, dtype=float)
         if self.lag_noise2 is not None:
             v = self._lag_noise(v)
@@ -521,15 +529,19 @@ class GyroCheck:
         return replace(v, drop_previous=True) if dropped else v
 
     def _calm_before(self, p: np.ndarray) -> bool:
-        """Was the residual calm along the held jump ``p`` before it (``_CALM_TICKS``)? The
-        ticks before the held one (the last kept is the held tick itself), root mean square
-        along ``p`` under ``return_fraction`` of ``|p|``; True with no tick before."""
-        before = self._calm[:-1]
+        """Were the innovation and the raw residual calm along the held jump ``p`` before it
+        (``_CALM_TICKS``)? The ticks before the held one (the last kept is the held tick
+        itself), root mean square along ``p`` under ``return_fraction`` of ``|p|`` for each;
+        True with no tick before."""
         pn = float(np.linalg.norm(p))
-        if not before or pn == 0.0:
-            return True
-        along = np.asarray(before) @ (p / pn)
-        return float(np.sqrt(np.mean(along * along))) < self.return_fraction * pn
+        for hist in (self._calm, self._calm_raw):
+            before = hist[:-1]
+            if not before or pn == 0.0:
+                continue
+            along = np.asarray(before) @ (p / pn)
+            if float(np.sqrt(np.mean(along * along))) >= self.return_fraction * pn:
+                return False
+        return True
 
     def _observer_surprised(self, r: np.ndarray) -> bool:
         """Did the observer's one-step prediction (flex included) miss the jump ``r`` too? Its
