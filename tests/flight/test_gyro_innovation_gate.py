@@ -22,15 +22,20 @@ from tests.flight.campaign_run import campaign_run
 NOISE_STD = 5e-6
 
 
-def _run(jump: np.ndarray, innovation_share: float, after: np.ndarray) -> list:
+def _run(jump: np.ndarray, innovation_share: float, after: np.ndarray,
+         swing: np.ndarray | None = None) -> list:
     """40 quiet ticks of noise, then a tick whose residual is ``jump`` with an innovation of
-    ``innovation_share`` of it, then a tick whose residual is ``after``."""
+    ``innovation_share`` of it, then a tick whose residual is ``after``; ``swing``: the raw
+    residual of the last 10 quiet ticks swings by +/- it (a mode ringing while the observer's
+    innovation stays at noise level)."""
     rng = np.random.default_rng(3)
     chk = GyroCheck(jump_rad_s=5e-4, noise_floor_rad_s=np.sqrt(18) * NOISE_STD)
     y = np.full(3, 1e-4)
     out = []
-    for _ in range(40):
+    for k in range(40):
         y = y + NOISE_STD * rng.standard_normal(3) * 0.1
+        if swing is not None and k >= 30:
+            y = y + swing * (1 if k % 2 else -1)
         out.append(chk.step(y.copy(), np.zeros(3), 0.0, np.zeros((4, 3)),
                             NOISE_STD * rng.standard_normal(3)))
     y = y + jump
@@ -83,39 +88,19 @@ def test_orel_array_ringing_is_not_named_a_gyro_bias_step(run: int) -> None:
     assert sim.summary["detections"] == []
 
 
-def _swinging(raw_before: float, innovation_share: float = 0.8) -> list:
-    """10 ticks whose raw residual swings +/-``raw_before`` along y, under the jump threshold (a
-    mode ringing while the observer's innovation stays at noise level), then a 1.0e-3 jump
-    along y with ``innovation_share`` of it in the innovation, then a tick of 0.2 of it."""
-    rng = np.random.default_rng(5)
-    chk = GyroCheck(jump_rad_s=5e-4, noise_floor_rad_s=np.sqrt(18) * NOISE_STD)
-    y = np.full(3, 1e-4)
-    out = []
-    for k in range(40):
-        y = y + NOISE_STD * rng.standard_normal(3) * 0.1
-        if k >= 30:
-            y = y + np.array([0.0, raw_before * (1 if k % 2 else -1), 0.0])
-        out.append(chk.step(y.copy(), np.zeros(3), 0.0, np.zeros((4, 3)),
-                            NOISE_STD * rng.standard_normal(3)))
-    jump = np.array([0.0, 1.0e-3, 0.0])
-    y = y + jump
-    out.append(chk.step(y.copy(), np.zeros(3), 0.0, np.zeros((4, 3)), innovation_share * jump))
-    y = y + 0.2 * jump + NOISE_STD * rng.standard_normal(3) * 0.1
-    out.append(chk.step(y.copy(), np.zeros(3), 0.0, np.zeros((4, 3)), 0.2 * jump))
-    return out
-
-
 def test_a_jump_out_of_a_swinging_raw_residual_is_no_bias_step() -> None:
     """orel-envelope-3 run 365 (fault-free; roll mode at 1.33 times its prior, not yet followed
     by the observer): the raw residual swung 5-9e-4 rad/s along the jump on the ticks before
     it while the innovation was quiet, then a 1.4e-3 jump the innovation carried (1.1e-3) and
-    0.3e-3 after: named a bias step at 6.6 s before. A sensor's step comes out of a calm raw
+    0.3e-3 after: named a bias step at 6.6 s before. Here: a 4.5e-4 swing (under the jump
+    threshold), a 1.0e-3 jump, 0.2e-3 after. A sensor's step comes out of a calm raw
     residual as well as a calm innovation; out of a swing it is held, dropped and not named.
     The same jump out of a calm raw residual (the oracle) is a bias step."""
-    out = _swinging(4.5e-4)
+    jump = np.array([0.0, 1.0e-3, 0.0])
+    out = _run(jump, 0.8, 0.2 * jump, swing=np.array([0.0, 4.5e-4, 0.0]))
     assert out[-2].hold
     assert all(v.fault is None for v in out)
-    assert _swinging(0.0)[-1].fault == BIAS_STEP
+    assert _run(jump, 0.8, 0.2 * jump)[-1].fault == BIAS_STEP
 
 
 def test_orel_held_out_run_365_names_no_gyro_fault() -> None:
