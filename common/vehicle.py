@@ -202,8 +202,8 @@ class ObserverCfg(_Model):
     freq_band: tuple[PosFloat, PosFloat] = (0.25, 4.0)
     # How well the mode frequency is known before flight, 1 sigma, a fraction of
     # initial_freq_hz (None: not modelled). Given, the observer also fits the frequency by
-    # least squares on the free ringing (three tick intervals in a row with no thruster
-    # burning: the flex increments follow z(n+1) = A z(n) - B z(n-1), a constant beside them
+    # least squares on the free ringing (three tick intervals in a row with no thrust on the
+    # channel: the flex increments follow z(n+1) = A z(n) - B z(n-1), a constant beside them
     # for a leak), takes the fit once it is known to a third of the prior, and reports the
     # flex prediction's uncertainty (flight/observer.py, "Frequency fitted on the free
     # ringing"; detector.flex_freq_dead_zone widens the dead zone by it).

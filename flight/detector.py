@@ -572,17 +572,21 @@ class Detector:
         self.latched = None
         self._hold = self.hold_ticks if hold_ticks is None else int(hold_ticks)
 
-    def in_ellipsoid(self, dw_B_rad_s: np.ndarray, commanded_rad_s: np.ndarray) -> bool:
+    def in_ellipsoid(self, dw_B_rad_s: np.ndarray, commanded_rad_s: np.ndarray,
+                     flex_sigma: np.ndarray | None = None) -> bool:
         """Ellipsoidal dead zone (``relative_dead_zone_across`` set): ``commanded_rad_s`` (N,)
         each thruster's commanded rate-change magnitude ``|mu_j| |k_j eff_j|``. The residual is
         inside when ``dw^T S^-1 dw < 1`` with ``S = dz^2 I + sum_j m_j^2 (a^2 e_j e_j^T + b^2
-        (I - e_j e_j^T))``, ``a = relative_dead_zone``, ``b = relative_dead_zone_across``."""
+        (I - e_j e_j^T))``, ``a = relative_dead_zone``, ``b = relative_dead_zone_across``, plus
+        ``diag(flex_sigma)^2`` (``flex_freq_dead_zone``, as in ``in_learnt_ellipsoid``)."""
         cfg = self.cfg
         m = np.abs(np.asarray(commanded_rad_s, dtype=float))
         a, b = cfg.relative_dead_zone, float(cfg.relative_dead_zone_across or 0.0)
         wa, wb = (m * a) ** 2, (m * b) ** 2
         S = (self.dead_zone_rad_s()**2 + float(wb.sum())) * np.eye(3) \
             + (self.e_B * (wa - wb)[:, None]).T @ self.e_B
+        if flex_sigma is not None:
+            S = S + np.diag(np.asarray(flex_sigma, dtype=float) ** 2)
         dw = np.asarray(dw_B_rad_s, dtype=float)
         if not np.any(dw):
             return True

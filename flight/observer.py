@@ -80,7 +80,7 @@ nearly every tick (a slew) it does not move at all; the ringing after the slew t
 frequency still at its a-priori value, 0.7-1.4 times off in orel's envelope, and the
 misprediction ``(A - A^) g`` (1-2.6e-4 rad/s against orel's 1e-4 dead zone) read as a
 middle-belt thruster stuck on (7 of 1,000 fault-free runs). On three tick intervals in a row
-with no thruster burning (``u = 0`` on every channel) the flex part of the rate increments,
+with no thrust on the channel (``u = 0`` there) the flex part of the rate increments,
 ``z(n) = y(n+1) - y(n) - d(n)``, follows the homogeneous recursion
 ``z(n+1) + B z(n-1) = A z(n)``; a leak adds the constant ``L (1 - A + B)``. Each such triple
 adds to a least-squares fit of ``(A, c)`` per channel (forgetting ``_FIT_FORGET`` per triple),
@@ -112,7 +112,6 @@ _P_FORGET = 0.95
 # Forgetting per triple of the frequency fit on the free ringing; triples before it is used.
 _FIT_FORGET = 0.98
 _FIT_MIN = 4.0
-_FIT_PER_CHANNEL = True
 # A tick is a switching instant for the mu^ identification when the channel's thrust
 # increment changes by more than this fraction of its size.
 _EDGE = 0.5
@@ -186,7 +185,9 @@ class AdaptiveObserver:
         self._Ntt = np.zeros(3)
         self._Nn = np.zeros(3)
         self._quiet_run = np.zeros(3, dtype=int)
-        self._zs: list[np.ndarray] = []  # the last quiet intervals' z (3,), oldest first
+        self._zs: list[np.ndarray] = []  # the last three intervals' z (3,), oldest first
+        # per channel, the intervals in a row with no thrust on it (the fit uses the last
+        # three when this is 3 or more)
         self.A_fit: np.ndarray | None = None
         self.sigma_A = self.sigma_A0.copy()
 
@@ -237,8 +238,7 @@ class AdaptiveObserver:
             self._zs = []
             self._quiet_run = np.zeros(3, dtype=int)
         else:
-            quiet = (u == 0.0) if _FIT_PER_CHANNEL else np.full(3, not np.any(u != 0.0))
-            self._quiet_run = np.where(quiet, self._quiet_run + 1, 0)
+            self._quiet_run = np.where(u == 0.0, self._quiet_run + 1, 0)
             self._zs = (self._zs + [y - self.y_prev - d])[-3:]
         self.y_prev = y.copy()
         use = self._quiet_run >= 3

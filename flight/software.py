@@ -1021,7 +1021,7 @@ class FlightSoftware:
         if det.cfg.relative_dead_zone_across is not None and pred.eff_s is not None:
             m = np.linalg.norm(self.arrays.mu_B_rad_s2, axis=1) * np.abs(
                 self.effectiveness.k * pred.eff_s)
-            return det.in_ellipsoid(dw, m)
+            return det.in_ellipsoid(dw, m, flex)
         extra = 0.0 if flex is None else float(np.linalg.norm(flex))
         return bool(det.project(dw, pred.dw_thr_abs_rad_s, extra_rad_s=extra)[2])
 

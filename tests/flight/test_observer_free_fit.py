@@ -171,3 +171,22 @@ def test_a_fault_free_orel_run_alarms_without_the_widening_and_not_with_it(tmp_p
                          {"flex_freq_dead_zone": "null"})
     dets = r0.summary["detections"]
     assert dets and dets[0]["type"] == "stuck_on" and dets[0]["t_s"] < 10.0, dets
+
+
+def test_every_dead_zone_form_takes_the_flex_term() -> None:
+    """The ellipsoids (``in_ellipsoid``, ``in_learnt_ellipsoid``) add diag(flex_sigma)^2 to
+    their S, written out: with nothing commanded, a residual of 1.5 dead zones along x is
+    outside, and inside with a flex sigma of 1.2 dead zones on x (1.5^2 < 1 + 1.2^2)."""
+    from flight.detector import Detector
+    from hil.config import DetectorCfg
+
+    dz = 1e-4
+    dw = np.array([1.5 * dz, 0.0, 0.0])
+    flex = np.array([1.2 * dz, 0.0, 0.0])
+    det = Detector(np.eye(3), DetectorCfg(dead_zone_rad_s=dz, relative_dead_zone=0.1,
+                                          relative_dead_zone_across=0.05))
+    assert not det.in_ellipsoid(dw, np.zeros(3))
+    assert det.in_ellipsoid(dw, np.zeros(3), flex)
+    learnt = Detector(np.eye(3), DetectorCfg(dead_zone_rad_s=dz, relative_dead_zone_sigma=3.0))
+    assert not learnt.in_learnt_ellipsoid(dw, np.zeros((3, 3)))
+    assert learnt.in_learnt_ellipsoid(dw, np.zeros((3, 3)), flex)
